@@ -1,0 +1,47 @@
+// Options of the engine, composed per module. Parsed only at the edges
+// (server config, CLI flags), validated here.
+#pragma once
+
+#include "absl/status/status.h"
+#include "slam/geometry/stereo_camera.h"
+#include "slam/joints/class_table.h"
+
+namespace twist {
+
+enum class MappingMode {
+  kSynchronous = 0,  // mapping runs inside Process(): deterministic (tests)
+  kBackground = 1,   // mapping runs in a per-session thread (service)
+};
+
+struct SlamOptions {
+  // Features.
+  int num_features = 2000;       // ORB features per image
+  int num_levels = 8;            // pyramid levels
+  double scale_factor = 1.2;     // pyramid scale
+  int fast_threshold = 20;       // initial FAST threshold (min 7 tried after)
+  // Stereo.
+  double max_depth_baselines = 40.0;  // "close" points: depth < this × baseline
+  // Mapping.
+  MappingMode mapping_mode = MappingMode::kSynchronous;
+  int local_ba_iterations = 10;
+  int num_threads = 1;  // Ceres threads per solve
+  // Dynamic objects (TwistSLAM §IV).
+  bool use_masks = true;            // false: ignore panoptic masks (all static)
+  bool track_objects = true;        // estimate object poses and twists
+  bool constrain_objects = true;    // false: free 6-DoF object motion
+  double temporal_window_s = 5.0;   // temporal keyframe set duration
+  // Seed for every random choice (RANSAC): same input -> same output.
+  uint64_t seed = 42;
+
+  absl::Status Validate() const;
+};
+
+struct SessionConfig {
+  geometry::StereoCamera camera;
+  joints::ClassTable classes = joints::ClassTable::CityscapesDefault();
+  SlamOptions options;
+
+  absl::Status Validate() const;
+};
+
+}  // namespace twist
