@@ -1,0 +1,46 @@
+// Stereo matching of ORB keypoints along rectified rows.
+//
+// For each left keypoint the candidates are the right keypoints registered in
+// its row band (± row_band_sigmas × level scale), with a disparity in
+// [0, bf / min_depth] and a pyramid level within ±1; the best Hamming distance
+// wins if below max_descriptor_distance. The right coordinate is then refined
+// by SAD block matching on the pyramid level (window 2w+1, search ±L) and a
+// parabola through the three SAD values around the minimum. Matches with a
+// SAD far above the median (robust scale) are rejected.
+#pragma once
+
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "slam/features/orb_extractor.h"
+#include "slam/geometry/stereo_camera.h"
+
+namespace twist::features {
+
+struct StereoMatchOptions {
+  int max_descriptor_distance = 75;  // (TH_HIGH + TH_LOW) / 2 of ORB-SLAM
+  int sad_half_window = 5;           // 11x11 patches
+  int sad_search = 5;                // ± pixels (at the level) around the ORB match
+  double row_band_sigmas = 2.0;      // row band half-height per level scale
+  double min_depth_baselines = 1.0;  // closest depth considered, in baselines
+  double sad_median_factor = 2.1;    // reject SAD > factor × median SAD
+};
+
+struct StereoMatchResult {
+  std::vector<float> u_right;  // per left keypoint, -1 when unmatched
+  std::vector<float> depth;    // per left keypoint (m), -1 when unmatched
+  int num_matches = 0;
+};
+
+StereoMatchResult MatchStereo(const geometry::StereoCamera& camera,
+                              const ScalePyramid& pyramid,
+                              const std::vector<cv::KeyPoint>& left_kps,
+                              const cv::Mat& left_desc,
+                              const std::vector<cv::KeyPoint>& right_kps,
+                              const cv::Mat& right_desc,
+                              const std::vector<cv::Mat>& left_levels,
+                              const std::vector<cv::Mat>& right_levels,
+                              const StereoMatchOptions& options = {});
+
+}  // namespace twist::features
