@@ -1,0 +1,95 @@
+#include <gtest/gtest.h>
+
+#include "slam/map/map.h"
+
+namespace twist::map {
+namespace {
+
+geometry::StereoCamera Camera() {
+  geometry::StereoCamera c;
+  c.fx = c.fy = 500;
+  c.cx = 320;
+  c.cy = 240;
+  c.baseline = 0.5;
+  c.width = 640;
+  c.height = 480;
+  return c;
+}
+
+Frame MakeFrame(int64_t id, int n, uint8_t fill, double z) {
+  FrameFeatures f;
+  for (int i = 0; i < n; ++i) f.keypoints.emplace_back(10.f * i, 100.f, 31.f, 0.f, 0.f, i % 3);
+  f.descriptors = cv::Mat(n, 32, CV_8UC1, cv::Scalar(fill));
+  Frame frame;
+  frame.id = id;
+  frame.features = FinalizeFeatures(std::move(f), 640, 480);
+  frame.camera_from_world = geometry::SE3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, 0, -z));
+  frame.ResetMatches();
+  return frame;
+}
+
+TEST(Map, IdsComeFromTheMapAndCovisibilityCountsSharedPoints) {
+  Map map(Camera(), features::ScalePyramid::Create(8, 1.2));
+  Map other(Camera(), features::ScalePyramid::Create(8, 1.2));
+  KeyFrame* a = map.CreateKeyFrame(MakeFrame(0, 40, 0, 0));
+  KeyFrame* b = map.CreateKeyFrame(MakeFrame(1, 40, 0, 1));
+  KeyFrame* c = map.CreateKeyFrame(MakeFrame(2, 40, 0, 2));
+  EXPECT_EQ(a->id, 0);
+  EXPECT_EQ(c->id, 2);
+  // Another map starts its own ids.
+  EXPECT_EQ(other.CreateKeyFrame(MakeFrame(0, 5, 0, 0))->id, 0);
+  // 30 points seen by a and b, 20 of which also by c.
+  for (int i = 0; i < 30; ++i) {
+    MapPoint* p = map.CreatePoint(Eigen::Vector3d(i, 0, 10), *a);
+    map.AddObservation(p, a, i);
+    map.AddObservation(p, b, i);
+    if (i < 20) map.AddObservation(p, c, i);
+  }
+  map.UpdateConnections(a);
+  map.UpdateConnections(b);
+  map.UpdateConnections(c);
+  EXPECT_EQ(a->connections.at(b->id), 30);
+  EXPECT_EQ(a->connections.at(c->id), 20);
+  EXPECT_EQ(a->BestCovisible(1), std::vector<int64_t>{b->id});
+  EXPECT_EQ(c->ordered_connections, (std::vector<int64_t>{a->id, b->id}));
+  EXPECT_EQ(map.NumGoodPoints(), 30);
+
+  // Erasing b: points seen only by a remain with one observation -> erased.
+  map.EraseKeyFrame(b->id);
+  EXPECT_EQ(map.keyframe(1), nullptr);
+  EXPECT_EQ(map.NumGoodPoints(), 20);
+  EXPECT_EQ(a->connections.count(1), 0u);
+  for (const auto& [id, p] : map.points()) EXPECT_EQ(p->observations.size(), 2u);
+}
+
+TEST(Map, ReplaceMergesObservationsAndDescriptorIsTheMedoid) {
+  Map map(Camera(), features::ScalePyramid::Create(8, 1.2));
+  KeyFrame* a = map.CreateKeyFrame(MakeFrame(0, 4, 0x00, 0));
+  KeyFrame* b = map.CreateKeyFrame(MakeFrame(1, 4, 0x01, 1));
+  KeyFrame* c = map.CreateKeyFrame(MakeFrame(2, 4, 0xff, 2));
+  MapPoint* p = map.CreatePoint(Eigen::Vector3d(0, 0, 10), *a);
+  map.AddObservation(p, a, 0);
+  map.AddObservation(p, b, 1);
+  MapPoint* q = map.CreatePoint(Eigen::Vector3d(0, 0, 10.1), *c);
+  map.AddObservation(q, c, 2);
+  map.AddObservation(q, b, 3);
+  const int64_t pid = p->id, qid = q->id;
+  map.ReplacePoint(qid, pid);
+  EXPECT_EQ(map.point(qid), nullptr);
+  p = map.point(pid);
+  ASSERT_NE(p, nullptr);
+  EXPECT_EQ(p->observations.size(), 3u);  // b kept its first observation
+  EXPECT_EQ(c->point_ids[2], pid);
+  EXPECT_EQ(b->point_ids[3], -1);
+  // Descriptors 0x00, 0x01, 0xff: the outlier 0xff is never the medoid.
+  EXPECT_NE(p->descriptor[0], 0xff);
+
+  map.UpdatePointNormalAndDepth(p);
+  EXPECT_NEAR(p->normal.z(), 1.0, 1e-9);
+  EXPECT_NEAR(p->max_distance, 10.0, 1e-5);  // level 0 in the reference kf
+  EXPECT_EQ(p->PredictScale(10.0f, map.pyramid()), 0);
+  EXPECT_EQ(p->PredictScale(10.0f / 1.3f, map.pyramid()), 2);
+}
+
+}  // namespace
+}  // namespace twist::map
