@@ -11,6 +11,7 @@
 #include <array>
 #include <chrono>
 #include <cstdio>
+#include <fstream>
 #include <memory>
 #include <string>
 #include <thread>
@@ -107,6 +108,17 @@ TEST_F(HealthProbeTest, WaitRetriesUntilServing) {
   const ProbeRun run = RunProbe("--addr " + addr_ + " --wait-ms 20000");
   flipper.join();
   EXPECT_EQ(run.exit_code, 0) << run.output;
+}
+
+TEST_F(HealthProbeTest, TokenFileInServerFormatIsAccepted) {
+  const std::string dir = ::testing::TempDir();
+  const std::string good = dir + "/probe_tokens_good";
+  const std::string empty = dir + "/probe_tokens_empty";
+  std::ofstream(good) << "# comment\n\n  s3cret alice\nother bob\n";
+  std::ofstream(empty) << "# only a comment\n\n";
+  EXPECT_EQ(RunProbe("--addr " + addr_ + " --token-file " + good).exit_code, 0);
+  EXPECT_EQ(RunProbe("--addr " + addr_ + " --token-file " + empty).exit_code,
+            3);
 }
 
 TEST(HealthProbeArgsTest, BadArgumentsExitThree) {

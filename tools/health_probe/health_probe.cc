@@ -5,6 +5,9 @@
 //       [--timeout-ms N] [--wait-ms N]
 //       [--tls] [--tls-ca FILE] [--tls-server-name NAME] [--token-file FILE]
 //
+// The token file may be the server's own --auth-token-file (the first token
+// in it is used) or a file holding just one token.
+//
 // Exit codes (compatible with Docker HEALTHCHECK, where 0 = healthy,
 // 1 = unhealthy and 2 is reserved):
 //   0  the server answered SERVING
@@ -68,7 +71,8 @@ void PrintUsage(std::ostream& out) {
          "  --tls-ca FILE           PEM roots to verify the server (default:"
          " system roots)\n"
          "  --tls-server-name NAME  name expected in the server certificate\n"
-         "  --token-file FILE       send 'authorization: Bearer <first line>'\n"
+         "  --token-file FILE       send 'authorization: Bearer <token>' (first\n"
+         "                          word of the first non-comment line)\n"
          "exit: 0 SERVING, 1 not serving or unreachable, 3 bad arguments\n";
 }
 
@@ -92,14 +96,18 @@ std::optional<std::string> ReadFile(const std::string& path) {
   return content.str();
 }
 
-std::string FirstLineTrimmed(const std::string& text) {
-  std::string line = text.substr(0, text.find('\n'));
-  const auto not_space = [](char c) { return c != ' ' && c != '\t' && c != '\r'; };
-  size_t begin = 0;
-  while (begin < line.size() && !not_space(line[begin])) ++begin;
-  size_t end = line.size();
-  while (end > begin && !not_space(line[end - 1])) --end;
-  return line.substr(begin, end - begin);
+// The token in a token file: the first word of the first line that is
+// neither blank nor a '#' comment. Accepts a bare token file as well as the
+// server's `<token> [<principal>]` format.
+std::string FirstToken(const std::string& text) {
+  std::istringstream lines(text);
+  std::string line;
+  while (std::getline(lines, line)) {
+    std::istringstream words(line);
+    std::string word;
+    if (words >> word && word[0] != '#') return word;
+  }
+  return "";
 }
 
 // Parses argv; on failure prints one line and returns nullopt with *exit_code
@@ -212,7 +220,7 @@ int Run(int argc, char** argv) {
   std::string token;
   if (!options.token_file.empty()) {
     std::optional<std::string> content = ReadFile(options.token_file);
-    token = content ? FirstLineTrimmed(*content) : "";
+    token = content ? FirstToken(*content) : "";
     if (token.empty()) {
       std::cerr << "twistslam-health-probe: no token in "
                 << options.token_file << "\n";
