@@ -1,6 +1,7 @@
 // Every cost family: analytic == autodiff (residuals and tangent-space
 // Jacobians) and both == finite differences (ceres::GradientChecker) at many
 // seeded random points.
+#include <algorithm>
 #include <memory>
 #include <random>
 #include <vector>
@@ -12,13 +13,18 @@
 #include "ceres/manifold.h"
 #include "slam/geometry/se3.h"
 #include "slam/geometry/stereo_camera.h"
+#include "slam/optimization/cost_functions/constant_velocity_cost.h"
+#include "slam/optimization/cost_functions/dynamic_reprojection_cost.h"
 #include "slam/optimization/cost_functions/reprojection_cost.h"
+#include "slam/optimization/cost_functions/twist_tracking_cost.h"
 #include "slam/optimization/manifolds/se3_manifold.h"
 
 namespace twist::optimization {
 namespace {
 
+using geometry::Matrix6d;
 using geometry::SE3d;
+using geometry::SO3d;
 using geometry::StereoCamera;
 using geometry::Vector6d;
 using Eigen::MatrixXd;
@@ -52,6 +58,17 @@ class Random {
   Eigen::Vector3d PointInCamera() {
     const double z = Uniform(3.0, 30.0);
     return Eigen::Vector3d(Uniform(-0.6, 0.6) * z, Uniform(-0.2, 0.2) * z, z);
+  }
+  // A world projector Π = Ad(T) Π_l Ad(T)⁻¹ as produced by a joint with a
+  // random frame T: Π_l selects `dof` random twist coordinates of the joint
+  // frame (non-symmetric in the world frame, like the real thing).
+  Matrix6d WorldProjector(int dof) {
+    std::vector<int> coords = {0, 1, 2, 3, 4, 5};
+    std::shuffle(coords.begin(), coords.end(), rng_);
+    Matrix6d pi_l = Matrix6d::Zero();
+    for (int k = 0; k < dof; ++k) pi_l(coords[k], coords[k]) = 1.0;
+    const Matrix6d ad = Pose(3.0).Adjoint();
+    return ad * pi_l * ad.inverse();
   }
   template <int N>
   ObservationVector<N> Noise(double sigma) {
@@ -219,6 +236,168 @@ TEST(StaticReprojectionCostTest, FailsBehindCamera) {
   std::unique_ptr<ceres::CostFunction> autodiff(
       ReprojectionFunctor<2>::Create(camera, Eigen::Vector2d(600, 200), 1.0));
   EXPECT_FALSE(autodiff->Evaluate(params, r.data(), nullptr));
+}
+
+// ------------------------------------------------------------ (b) tracking
+template <int N>
+void CheckTwistTracking(unsigned seed) {
+  Random random(seed);
+  for (int trial = 0; trial < kTrials; ++trial) {
+    TwistTrackingObservation<N> obs;
+    obs.camera = KittiLikeCamera();
+    obs.sqrt_information = random.Uniform(0.3, 1.0);
+    obs.camera_from_world = random.Pose(2.0);
+    obs.world_from_object_previous = random.Pose(3.0);
+    obs.world_projector = random.WorldProjector(trial % 7);
+    const Vector6d xi = random.Twist(0.6);
+    const Eigen::Vector3d p_c = random.PointInCamera();
+    obs.point_in_object = (obs.camera_from_world * SE3d::Exp(obs.world_projector * xi) *
+                           obs.world_from_object_previous)
+                              .Inverse() *
+                          p_c;
+    obs.observed = ProjectToObservation<N>(obs.camera, p_c) + random.Noise<N>(3.0);
+    const std::vector<double> twist(xi.data(), xi.data() + 6);
+    TwistTrackingCost<N> analytic(obs);
+    std::unique_ptr<ceres::CostFunction> autodiff(TwistTrackingFunctor<N>::Create(obs));
+    CheckCostPair(analytic, *autodiff, {twist}, {nullptr});
+  }
+}
+
+TEST(TwistTrackingCostTest, MonoAnalyticMatchesAutodiffAndFiniteDifferences) { CheckTwistTracking<2>(21); }
+TEST(TwistTrackingCostTest, StereoAnalyticMatchesAutodiffAndFiniteDifferences) { CheckTwistTracking<3>(22); }
+
+// The paper's Kronecker-form Jacobian
+//   ∂π/∂p_c (X̄ᵀ ⊗ I₃)(I₄ ⊗ R_cw)(w_T_oᵀ ⊗ I₃) ∂exp Π
+// (X̄ the homogeneous object point, ∂exp the derivative of the top 3x4 block of
+// exp at the identity, vec column-major) equals our Jacobian at ξ = 0 and
+// not elsewhere.
+Eigen::Matrix<double, 2, 6> PaperTrackingJacobian(const TwistTrackingObservation<2>& obs) {
+  auto kron = [](const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
+    Eigen::MatrixXd out(a.rows() * b.rows(), a.cols() * b.cols());
+    for (int i = 0; i < a.rows(); ++i)
+      for (int j = 0; j < a.cols(); ++j) out.block(i * b.rows(), j * b.cols(), b.rows(), b.cols()) = a(i, j) * b;
+    return out;
+  };
+  Eigen::MatrixXd d_exp = Eigen::MatrixXd::Zero(12, 6);
+  for (int c = 0; c < 3; ++c) d_exp.block(3 * c, 3, 3, 3) = -SO3d::Hat(Eigen::Vector3d::Unit(c));
+  d_exp.block(9, 0, 3, 3).setIdentity();
+  const Eigen::Vector4d x_bar = obs.point_in_object.homogeneous();
+  const Eigen::Matrix3d i3 = Eigen::Matrix3d::Identity();
+  const Eigen::Matrix4d i4 = Eigen::Matrix4d::Identity();
+  // Only the top 3x4 block of exp(·)·w_T_o·X̄ moves, so (w_T_oᵀ ⊗ I₃) acts on
+  // vec of the 3x4 block.
+  const Eigen::MatrixXd m = kron(x_bar.transpose(), i3) *
+                            kron(i4, obs.camera_from_world.rotation()) *
+                            kron(obs.world_from_object_previous.matrix().transpose(), i3) * d_exp *
+                            obs.world_projector;
+  const Eigen::Vector3d p_c = obs.camera_from_world * (obs.world_from_object_previous * obs.point_in_object);
+  // The residual is observed − predicted, hence the sign.
+  return -obs.sqrt_information * ProjectionJacobian<2>(obs.camera, p_c) * m;
+}
+
+TEST(TwistTrackingCostTest, PaperKroneckerJacobianMatchesOnlyAtZeroTwist) {
+  Random random(23);
+  for (int trial = 0; trial < kTrials; ++trial) {
+    TwistTrackingObservation<2> obs;
+    obs.camera = KittiLikeCamera();
+    obs.camera_from_world = random.Pose(1.0);
+    obs.world_from_object_previous = random.Pose(2.0);
+    obs.world_projector = random.WorldProjector(3 + trial % 4);
+    obs.point_in_object =
+        (obs.camera_from_world * obs.world_from_object_previous).Inverse() * random.PointInCamera();
+    obs.observed = Eigen::Vector2d(600.0, 180.0);
+    TwistTrackingCost<2> cost(obs);
+    const Eigen::Matrix<double, 2, 6> paper = PaperTrackingJacobian(obs);
+    auto jacobian_at = [&cost](const Vector6d& xi) {
+      const double* params[] = {xi.data()};
+      Eigen::Vector2d r;
+      Eigen::Matrix<double, 2, 6, Eigen::RowMajor> j;
+      double* jacs[] = {j.data()};
+      EXPECT_TRUE(cost.Evaluate(params, r.data(), jacs));
+      return Eigen::Matrix<double, 2, 6>(j);
+    };
+    ExpectNear(jacobian_at(Vector6d::Zero()), paper, 1e-10, "paper jacobian at xi = 0");
+    // Away from zero the identity-based formula is only an approximation.
+    const Vector6d xi = random.Twist(0.5);
+    EXPECT_GT((jacobian_at(xi) - paper).norm(), 1e-3 * paper.norm());
+  }
+}
+
+// ------------------------------------------------------------ (c) dynamic BA
+template <int N>
+void CheckDynamicReprojection(unsigned seed) {
+  Random random(seed);
+  const StereoCamera camera = KittiLikeCamera();
+  SE3Manifold se3;
+  for (int trial = 0; trial < kTrials; ++trial) {
+    const SE3d camera_from_world = random.Pose(2.0);
+    const SE3d world_from_object = random.Pose(3.0);
+    const Matrix6d projector = random.WorldProjector(trial % 7);
+    const Vector6d xi = random.Twist(0.6);
+    const Eigen::Vector3d p_c = random.PointInCamera();
+    const Eigen::Vector3d p_o =
+        (camera_from_world * SE3d::Exp(projector * xi) * world_from_object).Inverse() * p_c;
+    const ObservationVector<N> observed = ProjectToObservation<N>(camera, p_c) + random.Noise<N>(3.0);
+    const double sqrt_info = random.Uniform(0.3, 1.0);
+    DynamicReprojectionCost<N> analytic(camera, observed, sqrt_info, projector);
+    std::unique_ptr<ceres::CostFunction> autodiff(
+        DynamicReprojectionFunctor<N>::Create(camera, observed, sqrt_info, projector));
+    CheckCostPair(analytic, *autodiff,
+                  {PoseParams(camera_from_world), std::vector<double>(xi.data(), xi.data() + 6),
+                   PoseParams(world_from_object), std::vector<double>(p_o.data(), p_o.data() + 3)},
+                  {&se3, nullptr, &se3, nullptr});
+  }
+}
+
+TEST(DynamicReprojectionCostTest, MonoAnalyticMatchesAutodiffAndFiniteDifferences) {
+  CheckDynamicReprojection<2>(31);
+}
+TEST(DynamicReprojectionCostTest, StereoAnalyticMatchesAutodiffAndFiniteDifferences) {
+  CheckDynamicReprojection<3>(32);
+}
+
+// ------------------------------------------------------------ (d) constant velocity
+TEST(ConstantVelocityCostTest, AnalyticMatchesAutodiffAndFiniteDifferences) {
+  Random random(41);
+  SE3Manifold se3;
+  for (int trial = 0; trial < kTrials; ++trial) {
+    const Matrix6d projector = random.WorldProjector(trial % 7);
+    Vector6d sqrt_weights;
+    for (int i = 0; i < 6; ++i) sqrt_weights[i] = random.Uniform(0.5, 3.0);
+    std::vector<std::vector<double>> params;
+    SE3d pose = random.Pose(3.0);
+    for (int k = 0; k < 3; ++k) {
+      const Vector6d xi = random.Twist(0.3);
+      params.emplace_back(xi.data(), xi.data() + 6);
+      params.push_back(PoseParams(pose));
+      pose = SE3d::Exp(random.Twist(0.6)) * pose;
+    }
+    ConstantVelocityCost analytic(projector, sqrt_weights);
+    std::unique_ptr<ceres::CostFunction> autodiff(ConstantVelocityFunctor::Create(projector, sqrt_weights));
+    CheckCostPair(analytic, *autodiff, params, {nullptr, &se3, nullptr, &se3, nullptr, &se3});
+  }
+}
+
+TEST(ConstantVelocityCostTest, ZeroForConstantVelocityMotion) {
+  Random random(42);
+  const Matrix6d projector = random.WorldProjector(3);
+  const Vector6d velocity = projector * random.Twist(0.5);
+  const SE3d p0 = random.Pose(2.0);
+  const SE3d p1 = SE3d::Exp(velocity) * p0;
+  const SE3d p2 = SE3d::Exp(velocity) * p1;
+  const std::vector<double> zero(6, 0.0);
+  const std::vector<double> q0 = PoseParams(p0), q1 = PoseParams(p1), q2 = PoseParams(p2);
+  const double* params[] = {zero.data(), q0.data(), zero.data(), q1.data(), zero.data(), q2.data()};
+  ConstantVelocityCost cost(projector, Vector6d::Ones());
+  Vector6d r;
+  ASSERT_TRUE(cost.Evaluate(params, r.data(), nullptr));
+  EXPECT_LT(r.norm(), 1e-10);
+  // An acceleration shows up.
+  const SE3d p2_fast = SE3d::Exp(2.0 * velocity) * p1;
+  const std::vector<double> q2_fast = PoseParams(p2_fast);
+  params[5] = q2_fast.data();
+  ASSERT_TRUE(cost.Evaluate(params, r.data(), nullptr));
+  EXPECT_LT((r - velocity).norm(), 1e-9);
 }
 
 }  // namespace

@@ -1,0 +1,103 @@
+// Constrained twist reprojection of object tracking (paper eq. dyna_tracking).
+//
+// Error model, N = 2 (mono) or 3 (stereo, u_right as third row):
+//   r(ξ) = s · (x_obs − π_N(camera_from_world_i · Exp(Π ξ) · world_from_object_{i−1} · p_in_object))
+// Parameter: ξ ∈ R⁶, the object's twist in the world frame ((v, ω), Euclidean
+// block, no manifold). Constants: camera_from_world_i, world_from_object_{i−1},
+// the 6x6 world projector Π (joints::Joint::WorldProjector()), the point in the
+// object frame, the camera and the scalar square-root information s (1/σ,
+// e.g. from the MAD scale of the residuals).
+//
+// Analytic Jacobian, valid at every ξ (η = Πξ, p_w = Exp(η) · w_T_o · p_o,
+// p_c = R_cw p_w + t_cw):
+//   ∂r/∂ξ = −s · ∂π/∂p_c · R_cw · [I, −[p_w]x] · J_l(η) · Π
+// J_l is the SE(3) left Jacobian: Exp(η + dη) = Exp(J_l(η) dη) Exp(η). The
+// paper's Kronecker-form formula (∂exp evaluated at the identity) equals this
+// expression at ξ = 0 only (J_l(0) = I); see docs/math.md.
+// Evaluation fails for points with depth ≤ kMinProjectionDepth.
+#pragma once
+
+#include <Eigen/Core>
+
+#include "ceres/autodiff_cost_function.h"
+#include "ceres/sized_cost_function.h"
+#include "slam/geometry/se3.h"
+#include "slam/geometry/stereo_camera.h"
+#include "slam/optimization/cost_functions/projection.h"
+
+namespace twist::optimization {
+
+// Constants shared by both twins.
+template <int N>
+struct TwistTrackingObservation {
+  geometry::StereoCamera camera;
+  ObservationVector<N> observed = ObservationVector<N>::Zero();
+  double sqrt_information = 1.0;
+  geometry::SE3d camera_from_world;          // current frame i (fixed)
+  geometry::SE3d world_from_object_previous;  // frame i−1 (fixed)
+  geometry::Matrix6d world_projector = geometry::Matrix6d::Identity();  // Π
+  Eigen::Vector3d point_in_object = Eigen::Vector3d::Zero();
+};
+
+// ----------------------------------------------------------------- autodiff
+template <int N>
+class TwistTrackingFunctor {
+ public:
+  explicit TwistTrackingFunctor(const TwistTrackingObservation<N>& obs) : obs_(obs) {}
+
+  template <typename T>
+  bool operator()(const T* twist, T* residuals) const {
+    using SE3T = geometry::SE3<T>;
+    const Eigen::Map<const Eigen::Matrix<T, 6, 1>> xi(twist);
+    const Eigen::Matrix<T, 6, 1> eta = obs_.world_projector.template cast<T>() * xi;
+    const SE3T camera_from_object = obs_.camera_from_world.template cast<T>() * SE3T::Exp(eta) *
+                                    obs_.world_from_object_previous.template cast<T>();
+    const Eigen::Matrix<T, 3, 1> p_c = camera_from_object * obs_.point_in_object.template cast<T>();
+    if (!(p_c.z() > T(kMinProjectionDepth))) return false;
+    Eigen::Map<Eigen::Matrix<T, N, 1>> r(residuals);
+    r = T(obs_.sqrt_information) *
+        (obs_.observed.template cast<T>() - ProjectToObservation<N>(obs_.camera, p_c));
+    return true;
+  }
+
+  static ceres::CostFunction* Create(const TwistTrackingObservation<N>& obs) {
+    return new ceres::AutoDiffCostFunction<TwistTrackingFunctor, N, 6>(new TwistTrackingFunctor(obs));
+  }
+
+ private:
+  TwistTrackingObservation<N> obs_;
+};
+
+// ----------------------------------------------------------------- analytic
+template <int N>
+class TwistTrackingCost final : public ceres::SizedCostFunction<N, 6> {
+ public:
+  explicit TwistTrackingCost(const TwistTrackingObservation<N>& obs)
+      : obs_(obs), point_in_world_previous_(obs.world_from_object_previous * obs.point_in_object) {}
+
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override {
+    const Eigen::Map<const geometry::Vector6d> xi(parameters[0]);
+    const geometry::Vector6d eta = obs_.world_projector * xi;
+    const Eigen::Vector3d p_w = geometry::SE3d::Exp(eta) * point_in_world_previous_;
+    const Eigen::Vector3d p_c = obs_.camera_from_world * p_w;
+    if (!(p_c.z() > kMinProjectionDepth)) return false;
+    Eigen::Map<Eigen::Matrix<double, N, 1>> r(residuals);
+    r = obs_.sqrt_information * (obs_.observed - ProjectToObservation<N>(obs_.camera, p_c));
+    if (jacobians != nullptr && jacobians[0] != nullptr) {
+      Eigen::Map<Eigen::Matrix<double, N, 6, Eigen::RowMajor>> j(jacobians[0]);
+      j = -obs_.sqrt_information * ProjectionJacobian<N>(obs_.camera, p_c) *
+          obs_.camera_from_world.rotation() * PointPerturbationJacobian(p_w) *
+          geometry::SE3d::LeftJacobian(eta) * obs_.world_projector;
+    }
+    return true;
+  }
+
+ private:
+  TwistTrackingObservation<N> obs_;
+  Eigen::Vector3d point_in_world_previous_;
+};
+
+using MonoTwistTrackingCost = TwistTrackingCost<2>;
+using StereoTwistTrackingCost = TwistTrackingCost<3>;
+
+}  // namespace twist::optimization
