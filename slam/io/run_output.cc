@@ -1,0 +1,119 @@
+#include "slam/io/run_output.h"
+
+#include <algorithm>
+#include <filesystem>
+#include <map>
+#include <system_error>
+
+#include "slam/io/file_util.h"
+#include "slam/io/json_writer.h"
+
+namespace twist::io {
+
+void RunOutputWriter::Add(const FrameResult& result) {
+  FrameRecord f;
+  f.index = result.index;
+  f.timestamp_ns = result.timestamp_ns;
+  f.state = result.state;
+  f.world_from_camera = result.world_from_camera;
+  f.is_keyframe = result.is_keyframe;
+  f.num_map_points = result.num_map_points;
+  f.num_keyframes = result.num_keyframes;
+  f.timings = result.timings;
+  frames_.push_back(std::move(f));
+  for (const ObjectResult& o : result.objects) {
+    if (o.state == ObjectState::kLost) continue;
+    ObjectTrackRow row;
+    row.frame = result.index;
+    row.track_id = o.id;
+    row.class_id = o.class_id;
+    row.world_from_object = o.world_from_object;
+    row.twist_in_world = o.twist_in_world;
+    row.instance_id = o.instance_id;
+    objects_.push_back(row);
+  }
+}
+
+std::vector<geometry::SE3d> RunOutputWriter::CameraPoses() const {
+  std::vector<geometry::SE3d> poses;
+  for (const FrameRecord& f : frames_) poses.push_back(f.world_from_camera);
+  return poses;
+}
+
+std::vector<StampedPose> RunOutputWriter::CameraTum() const {
+  std::vector<StampedPose> poses;
+  for (const FrameRecord& f : frames_) poses.push_back({f.timestamp_ns, f.world_from_camera});
+  return poses;
+}
+
+std::vector<ObjectTrackRow> RunOutputWriter::ObjectRows() const { return objects_; }
+
+std::string RunOutputWriter::SummaryJson(const RunInfo& info) const {
+  JsonWriter w;
+  w.BeginObject();
+  w.Key("dataset").String(info.dataset);
+  w.Key("format").String(info.format);
+  w.Key("sequence").String(info.sequence);
+  w.Key("mode").String(info.mode);
+  w.Key("frames").Int(num_frames());
+  w.Key("wall_time_s").Number(info.wall_time_s);
+  std::map<std::string, int64_t> states;
+  for (TrackingState s : {TrackingState::kNotInitialized, TrackingState::kOk, TrackingState::kLost,
+                          TrackingState::kRelocalized}) {
+    states[TrackingStateName(s)] = 0;
+  }
+  int64_t keyframes = 0;
+  std::map<std::string, std::vector<double>> timings;
+  for (const FrameRecord& f : frames_) {
+    ++states[TrackingStateName(f.state)];
+    keyframes += f.is_keyframe ? 1 : 0;
+    for (const StageTiming& t : f.timings) timings[t.stage].push_back(t.ms);
+  }
+  w.Key("tracking_states").BeginObject();
+  for (const auto& [name, n] : states) w.Key(name).Int(n);
+  w.EndObject();
+  w.Key("keyframes_inserted").Int(keyframes);
+  w.Key("final_map_points").Int(frames_.empty() ? 0 : frames_.back().num_map_points);
+  w.Key("final_keyframes").Int(frames_.empty() ? 0 : frames_.back().num_keyframes);
+  std::map<int64_t, int64_t> track_lengths;
+  for (const ObjectTrackRow& r : objects_) ++track_lengths[r.track_id];
+  w.Key("object_tracks").Int(static_cast<int64_t>(track_lengths.size()));
+  w.Key("object_rows").Int(static_cast<int64_t>(objects_.size()));
+  w.Key("timings_ms").BeginObject();
+  for (auto& [stage, values] : timings) {
+    std::vector<double> v = values;
+    std::sort(v.begin(), v.end());
+    double mean = 0;
+    for (double x : v) mean += x;
+    mean /= static_cast<double>(v.size());
+    w.Key(stage).BeginObject();
+    w.Key("median").Number(v[v.size() / 2]);
+    w.Key("mean").Number(mean);
+    w.Key("p90").Number(v[std::min(v.size() - 1, v.size() * 9 / 10)]);
+    w.Key("max").Number(v.back());
+    w.EndObject();
+  }
+  w.EndObject();
+  for (const auto& [key, value] : info.numbers) w.Key(key).Number(value);
+  for (const auto& [key, value] : info.strings) w.Key(key).String(value);
+  w.EndObject();
+  return w.str();
+}
+
+absl::Status RunOutputWriter::Write(const std::string& dir, const RunInfo& info) const {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec || !DirExists(dir)) {
+    return absl::FailedPreconditionError("cannot create output directory " + dir +
+                                         (ec ? ": " + ec.message() : ""));
+  }
+  absl::Status s = WriteKittiPoses(JoinPath(dir, "camera.txt"), CameraPoses());
+  if (!s.ok()) return s;
+  s = WriteTumTrajectory(JoinPath(dir, "camera_tum.txt"), CameraTum());
+  if (!s.ok()) return s;
+  s = WriteObjectTracks(JoinPath(dir, "objects.txt"), objects_);
+  if (!s.ok()) return s;
+  return WriteFileAtomic(JoinPath(dir, "summary.json"), SummaryJson(info));
+}
+
+}  // namespace twist::io

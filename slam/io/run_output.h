@@ -1,0 +1,65 @@
+// Writer of the per-run outputs of DESIGN.md §6 into an output directory:
+//   camera.txt      KITTI 3x4 world_from_left-camera, one line per frame
+//   camera_tum.txt  TUM `t tx ty tz qx qy qz qw`
+//   objects.txt     `frame track_id class tx ty tz qx qy qz qw vx vy vz wx wy wz instance_id`
+//                   (objects in state new/tracked only)
+//   summary.json    run description, tracking-state counts, timings, caller's extras
+// Every file is written to a temporary name and renamed, summary.json last, so
+// a directory with summary.json holds a complete run.
+//
+//   RunOutputWriter out;
+//   for (...) out.Add(result);                 // FrameResult per frame, in order
+//   RunInfo info; info.dataset = ...;
+//   absl::Status s = out.Write("/tmp/run", info);
+#pragma once
+
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "slam/common/frame_result.h"
+#include "slam/io/trajectory_io.h"
+
+namespace twist::io {
+
+struct RunInfo {
+  std::string dataset;   // dataset directory
+  std::string format;    // kitti-odometry | kitti-tracking
+  std::string sequence;
+  std::string mode;      // e.g. "embedded", "server 127.0.0.1:50051"
+  double wall_time_s = 0;
+  // Extra scalar fields added to summary.json at the top level.
+  std::vector<std::pair<std::string, double>> numbers;
+  std::vector<std::pair<std::string, std::string>> strings;
+};
+
+class RunOutputWriter {
+ public:
+  void Add(const FrameResult& result);
+  int64_t num_frames() const { return static_cast<int64_t>(frames_.size()); }
+
+  std::vector<geometry::SE3d> CameraPoses() const;
+  std::vector<StampedPose> CameraTum() const;
+  std::vector<ObjectTrackRow> ObjectRows() const;
+  std::string SummaryJson(const RunInfo& info) const;
+
+  // Creates `dir` if needed and writes the four files.
+  absl::Status Write(const std::string& dir, const RunInfo& info) const;
+
+ private:
+  struct FrameRecord {
+    int64_t index = 0;
+    int64_t timestamp_ns = 0;
+    TrackingState state = TrackingState::kNotInitialized;
+    geometry::SE3d world_from_camera;
+    bool is_keyframe = false;
+    int num_map_points = 0;
+    int num_keyframes = 0;
+    std::vector<StageTiming> timings;
+  };
+  std::vector<FrameRecord> frames_;
+  std::vector<ObjectTrackRow> objects_;
+};
+
+}  // namespace twist::io
