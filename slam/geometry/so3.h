@@ -21,6 +21,11 @@ namespace twist::geometry {
 template <typename T>
 struct SmallAngle {
   static constexpr double kThetaSq = 1e-10;
+  // The Jacobian coefficients ((1 - cos θ)/θ², (θ - sin θ)/θ³, ...) cancel
+  // catastrophically well above kThetaSq (relative error ~ ε/θ⁴ for the
+  // fourth-order ones), so they switch to their series (to θ⁸, truncation
+  // < 1e-18 here) below θ = 0.1.
+  static constexpr double kJacobianThetaSq = 1e-2;
 };
 
 template <typename T>
@@ -118,9 +123,10 @@ class SO3 {
     const T theta_sq = omega.squaredNorm();
     const Matrix3 W = Hat(omega);
     T a, b;  // J_l = I + a W + b W²
-    if (theta_sq < T(SmallAngle<T>::kThetaSq)) {
-      a = T(0.5) - theta_sq / T(24.0);
-      b = T(1.0 / 6.0) - theta_sq / T(120.0);
+    if (theta_sq < T(SmallAngle<T>::kJacobianThetaSq)) {
+      const T t2 = theta_sq;
+      a = T(1.0 / 2.0) - t2 * (T(1.0 / 24.0) - t2 * (T(1.0 / 720.0) - t2 * (T(1.0 / 40320.0) - t2 / T(3628800.0))));
+      b = T(1.0 / 6.0) - t2 * (T(1.0 / 120.0) - t2 * (T(1.0 / 5040.0) - t2 * (T(1.0 / 362880.0) - t2 / T(39916800.0))));
     } else {
       const T theta = sqrt(theta_sq);
       a = (T(1.0) - cos(theta)) / theta_sq;
@@ -138,8 +144,9 @@ class SO3 {
     const T theta_sq = omega.squaredNorm();
     const Matrix3 W = Hat(omega);
     T c;  // J_l^{-1} = I - W/2 + c W²
-    if (theta_sq < T(SmallAngle<T>::kThetaSq)) {
-      c = T(1.0 / 12.0) + theta_sq / T(720.0);
+    if (theta_sq < T(SmallAngle<T>::kJacobianThetaSq)) {
+      const T t2 = theta_sq;
+      c = T(1.0 / 12.0) + t2 * (T(1.0 / 720.0) + t2 * (T(1.0 / 30240.0) + t2 * (T(1.0 / 1209600.0) + t2 / T(47900160.0))));
     } else {
       const T theta = sqrt(theta_sq);
       // (1 + cos θ) / (2 θ sin θ) written as cot(θ/2) / (2θ): finite at θ = π.
