@@ -14,8 +14,8 @@ PACKAGES=(
   # service
   libgrpc++-dev libgrpc-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libabsl-dev libssl-dev
-  # tests and benchmarks
-  libgtest-dev libgmock-dev libbenchmark-dev
+  # tests and benchmarks (python3-yaml + yamllint: deployment manifest checks)
+  libgtest-dev libgmock-dev libbenchmark-dev python3 python3-yaml yamllint
 )
 
 missing=()
