@@ -1,0 +1,125 @@
+#include "slam/objects/projection_search.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <glog/logging.h>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+namespace twist::objects {
+
+int HammingDistance(const cv::Mat& a, const cv::Mat& b) {
+  return static_cast<int>(cv::norm(a, b, cv::NORM_HAMMING));
+}
+
+std::vector<int> SearchByProjection(const geometry::StereoCamera& camera,
+                                    const geometry::SE3d& camera_from_object,
+                                    const std::vector<Eigen::Vector3d>& points_in_object,
+                                    const std::vector<cv::Mat>& descriptors,
+                                    const std::vector<bool>& skip,
+                                    const FrameKeypoints& keypoints,
+                                    const ProjectionSearchOptions& options) {
+  const size_t n = points_in_object.size();
+  CHECK_EQ(descriptors.size(), n);
+  CHECK_EQ(skip.size(), n);
+  std::vector<int> match(n, -1);
+  const int num_kp = static_cast<int>(keypoints.uv.size());
+  if (num_kp == 0 || keypoints.descriptors.rows != num_kp) return match;
+  std::vector<int> owner(static_cast<size_t>(num_kp), -1);
+  std::vector<int> owner_dist(static_cast<size_t>(num_kp), std::numeric_limits<int>::max());
+  const double r2 = options.radius_px * options.radius_px;
+  for (size_t k = 0; k < n; ++k) {
+    if (skip[k] || descriptors[k].empty()) continue;
+    Eigen::Vector2d uv;
+    if (!camera.ProjectChecked(camera_from_object * points_in_object[k], &uv, nullptr, 0.1)) continue;
+    if (!camera.InImage(uv)) continue;
+    int best = -1, best_d = std::numeric_limits<int>::max(), second_d = std::numeric_limits<int>::max();
+    for (int i = 0; i < num_kp; ++i) {
+      if ((keypoints.uv[static_cast<size_t>(i)] - uv).squaredNorm() > r2) continue;
+      const int d = HammingDistance(descriptors[k], keypoints.descriptors.row(i));
+      if (d < best_d) {
+        second_d = best_d;
+        best_d = d;
+        best = i;
+      } else if (d < second_d) {
+        second_d = d;
+      }
+    }
+    if (best < 0 || best_d > options.max_hamming) continue;
+    if (second_d < std::numeric_limits<int>::max() && best_d > options.ratio * second_d) continue;
+    const size_t b = static_cast<size_t>(best);
+    if (best_d >= owner_dist[b]) continue;
+    if (owner[b] >= 0) match[static_cast<size_t>(owner[b])] = -1;
+    owner[b] = static_cast<int>(k);
+    owner_dist[b] = best_d;
+    match[k] = best;
+  }
+  return match;
+}
+
+cv::Mat ExtractPatch(const cv::Mat& image, const Eigen::Vector2d& uv, int half_size) {
+  CHECK_EQ(image.type(), CV_8UC1);
+  const int size = 2 * half_size + 1;
+  if (uv.x() - half_size < 0 || uv.y() - half_size < 0 || uv.x() + half_size > image.cols - 1 ||
+      uv.y() + half_size > image.rows - 1) {
+    return cv::Mat();
+  }
+  cv::Mat patch;
+  cv::getRectSubPix(image, cv::Size(size, size), cv::Point2f(static_cast<float>(uv.x()), static_cast<float>(uv.y())),
+                    patch, CV_32F);
+  return patch;
+}
+
+double Ncc(const cv::Mat& a, const cv::Mat& b) {
+  CHECK_EQ(a.type(), CV_32F);
+  CHECK(a.size() == b.size() && a.type() == b.type());
+  cv::Scalar ma, sa, mb, sb;
+  cv::meanStdDev(a, ma, sa);
+  cv::meanStdDev(b, mb, sb);
+  if (sa[0] < 1e-6 || sb[0] < 1e-6) return 0.0;
+  cv::Mat da = a - ma[0], db = b - mb[0];
+  return da.dot(db) / (static_cast<double>(a.total()) * sa[0] * sb[0]);
+}
+
+std::optional<Eigen::Vector2d> PatchSearch(const cv::Mat& image,
+                                           const cv::Mat& patch,
+                                           const Eigen::Vector2d& predicted,
+                                           const ProjectionSearchOptions& options) {
+  if (patch.empty()) return std::nullopt;
+  const int h = patch.rows / 2;
+  const int r = static_cast<int>(std::ceil(options.patch_search_radius_px));
+  const int w = 2 * r + 1;
+  cv::Mat scores(w, w, CV_64F, cv::Scalar(-2.0));
+  double best = -2.0;
+  int bx = 0, by = 0;
+  for (int dy = -r; dy <= r; ++dy) {
+    for (int dx = -r; dx <= r; ++dx) {
+      if (dx * dx + dy * dy > options.patch_search_radius_px * options.patch_search_radius_px + 1e-9) continue;
+      const cv::Mat p = ExtractPatch(image, predicted + Eigen::Vector2d(dx, dy), h);
+      if (p.empty()) continue;
+      const double s = Ncc(patch, p);
+      scores.at<double>(dy + r, dx + r) = s;
+      if (s > best) {
+        best = s;
+        bx = dx;
+        by = dy;
+      }
+    }
+  }
+  if (best < options.min_ncc) return std::nullopt;
+  // Sub-pixel: 1D parabola through the neighbours along each axis.
+  auto refine = [](double l, double c, double rr) {
+    const double den = l - 2.0 * c + rr;
+    if (l < -1.5 || rr < -1.5 || std::abs(den) < 1e-12) return 0.0;
+    return std::clamp(0.5 * (l - rr) / den, -0.5, 0.5);
+  };
+  const int cx = bx + r, cy = by + r;
+  double ox = 0.0, oy = 0.0;
+  if (cx > 0 && cx < w - 1) ox = refine(scores.at<double>(cy, cx - 1), best, scores.at<double>(cy, cx + 1));
+  if (cy > 0 && cy < w - 1) oy = refine(scores.at<double>(cy - 1, cx), best, scores.at<double>(cy + 1, cx));
+  return predicted + Eigen::Vector2d(bx + ox, by + oy);
+}
+
+}  // namespace twist::objects

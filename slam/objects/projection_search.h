@@ -1,0 +1,65 @@
+// Refinement of an object's matches by projecting its map points with the
+// estimated twist (paper §IV-E, "as ORB-SLAM2 does"): every point without a
+// match is projected into the current frame and matched to a keypoint within a
+// radius by descriptor distance, or, for points that keep an image patch, by a
+// normalised cross-correlation search around the projection.
+#pragma once
+
+#include <optional>
+#include <vector>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include "slam/geometry/se3.h"
+#include "slam/geometry/stereo_camera.h"
+
+namespace twist::objects {
+
+// Keypoints of the current left image (plain data, from the feature module).
+struct FrameKeypoints {
+  std::vector<Eigen::Vector2d> uv;
+  std::vector<double> u_right;  // per keypoint, < 0 when no stereo match
+  cv::Mat descriptors;          // one CV_8U row per keypoint (ORB: 32 bytes)
+};
+
+struct ProjectionSearchOptions {
+  double radius_px = 8.0;
+  int max_hamming = 60;       // ORB descriptor distance of a match
+  double ratio = 0.9;         // best / second-best distance (same radius)
+  int patch_half_size = 4;    // (2h+1)² patch for the NCC check
+  double min_ncc = 0.85;
+  double patch_search_radius_px = 4.0;
+};
+
+// Hamming distance of two CV_8U descriptor rows.
+int HammingDistance(const cv::Mat& a, const cv::Mat& b);
+
+// For each point (object frame) with a descriptor row in `descriptors` (may
+// be empty for points without one) and `skip[k] == false`, the index of the
+// best keypoint within radius of its projection, or -1. Each keypoint is used
+// at most once (the closer descriptor wins).
+std::vector<int> SearchByProjection(const geometry::StereoCamera& camera,
+                                    const geometry::SE3d& camera_from_object,
+                                    const std::vector<Eigen::Vector3d>& points_in_object,
+                                    const std::vector<cv::Mat>& descriptors,
+                                    const std::vector<bool>& skip,
+                                    const FrameKeypoints& keypoints,
+                                    const ProjectionSearchOptions& options);
+
+// Extracts a (2h+1)² CV_32F patch centred on uv (bilinear); empty when it
+// does not fit in the image. `image` is 8-bit gray.
+cv::Mat ExtractPatch(const cv::Mat& image, const Eigen::Vector2d& uv, int half_size);
+
+// Zero-mean normalised cross-correlation of two same-size CV_32F patches.
+double Ncc(const cv::Mat& a, const cv::Mat& b);
+
+// Searches the integer offsets within patch_search_radius_px of `predicted`
+// for the best NCC with `patch`, then refines to sub-pixel with a parabola
+// fit. nullopt when the best NCC is below min_ncc.
+std::optional<Eigen::Vector2d> PatchSearch(const cv::Mat& image,
+                                           const cv::Mat& patch,
+                                           const Eigen::Vector2d& predicted,
+                                           const ProjectionSearchOptions& options);
+
+}  // namespace twist::objects

@@ -1,0 +1,240 @@
+#include "slam/objects/twist_estimator.h"
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <optional>
+
+#include <Eigen/SVD>
+#include <ceres/ceres.h>
+#include <glog/logging.h>
+
+#include "slam/optimization/cost_functions/twist_tracking_cost.h"
+
+namespace twist::objects {
+namespace {
+
+using geometry::Matrix6d;
+using geometry::SE3d;
+using geometry::Vector6d;
+using Basis = Eigen::Matrix<double, 6, Eigen::Dynamic>;
+
+// ξ = x + B δ: moves a 6-vector inside the column space of B (orthonormal).
+class LinearSubspaceManifold final : public ceres::Manifold {
+ public:
+  explicit LinearSubspaceManifold(const Basis& basis) : basis_(basis) {}
+  int AmbientSize() const override { return 6; }
+  int TangentSize() const override { return static_cast<int>(basis_.cols()); }
+  bool Plus(const double* x, const double* delta, double* x_plus_delta) const override {
+    Eigen::Map<Vector6d> out(x_plus_delta);
+    out = Eigen::Map<const Vector6d>(x) +
+          basis_ * Eigen::Map<const Eigen::VectorXd>(delta, basis_.cols());
+    return true;
+  }
+  bool PlusJacobian(const double* /*x*/, double* jacobian) const override {
+    Eigen::Map<Eigen::Matrix<double, 6, Eigen::Dynamic, Eigen::RowMajor>> j(jacobian, 6,
+                                                                           basis_.cols());
+    j = basis_;
+    return true;
+  }
+  bool Minus(const double* y, const double* x, double* y_minus_x) const override {
+    Eigen::Map<Eigen::VectorXd> out(y_minus_x, basis_.cols());
+    out = basis_.transpose() * (Eigen::Map<const Vector6d>(y) - Eigen::Map<const Vector6d>(x));
+    return true;
+  }
+  bool MinusJacobian(const double* /*x*/, double* jacobian) const override {
+    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 6, Eigen::RowMajor>> j(jacobian,
+                                                                           basis_.cols(), 6);
+    j = basis_.transpose();
+    return true;
+  }
+
+ private:
+  Basis basis_;
+};
+
+template <int N>
+ceres::CostFunction* MakeCost(const geometry::StereoCamera& camera,
+                              const SE3d& camera_from_world,
+                              const SE3d& world_from_object_previous,
+                              const Matrix6d& projector,
+                              const TwistObservation& obs,
+                              double sqrt_information,
+                              bool autodiff) {
+  optimization::TwistTrackingObservation<N> o;
+  o.camera = camera;
+  if constexpr (N == 2) {
+    o.observed = obs.uv;
+  } else {
+    o.observed = Eigen::Vector3d(obs.uv.x(), obs.uv.y(), obs.u_right);
+  }
+  o.sqrt_information = sqrt_information;
+  o.camera_from_world = camera_from_world;
+  o.world_from_object_previous = world_from_object_previous;
+  o.world_projector = projector;
+  o.point_in_object = obs.point_in_object;
+  if (autodiff) return optimization::TwistTrackingFunctor<N>::Create(o);
+  return new optimization::TwistTrackingCost<N>(o);
+}
+
+double Median(std::vector<double>* v) {
+  if (v->empty()) return 0.0;
+  const size_t mid = v->size() / 2;
+  std::nth_element(v->begin(), v->begin() + static_cast<long>(mid), v->end());
+  const double hi = (*v)[mid];
+  if (v->size() % 2 == 1) return hi;
+  const double lo = *std::max_element(v->begin(), v->begin() + static_cast<long>(mid));
+  return 0.5 * (lo + hi);
+}
+
+}  // namespace
+
+absl::Status TwistEstimatorOptions::Validate() const {
+  if (max_rounds < 1 || max_iterations < 1) {
+    return absl::InvalidArgumentError("twist estimator needs max_rounds >= 1 and max_iterations >= 1");
+  }
+  if (!(huber_delta > 0.0) || !(min_sigma_px > 0.0) || !(max_sigma_px >= min_sigma_px)) {
+    return absl::InvalidArgumentError(
+        "twist estimator needs huber_delta > 0 and 0 < min_sigma_px <= max_sigma_px");
+  }
+  if (!(chi2_mono > 0.0) || !(chi2_stereo > 0.0)) {
+    return absl::InvalidArgumentError("twist estimator chi2 gates must be > 0");
+  }
+  if (min_inliers < 1) return absl::InvalidArgumentError("twist estimator min_inliers < 1");
+  return absl::OkStatus();
+}
+
+Basis ProjectorRangeBasis(const Matrix6d& projector) {
+  Eigen::JacobiSVD<Matrix6d> svd(projector, Eigen::ComputeFullU);
+  const Vector6d s = svd.singularValues();
+  int rank = 0;
+  for (int k = 0; k < 6; ++k) rank += s(k) > 1e-9 * std::max(1.0, s(0)) ? 1 : 0;
+  return svd.matrixU().leftCols(rank);
+}
+
+double MadScale(std::vector<double> r) {
+  if (r.empty()) return 0.0;
+  const double med = Median(&r);
+  for (double& x : r) x = std::abs(x - med);
+  return 1.4826 * Median(&r);
+}
+
+std::optional<Eigen::Vector3d> TwistResidual(const geometry::StereoCamera& camera,
+                                             const SE3d& camera_from_world,
+                                             const SE3d& world_from_object_previous,
+                                             const Vector6d& constrained_twist,
+                                             const TwistObservation& obs) {
+  const Eigen::Vector3d p_c = camera_from_world * (SE3d::Exp(constrained_twist) *
+                                                   (world_from_object_previous * obs.point_in_object));
+  Eigen::Vector3d uvr;
+  if (!camera.ProjectStereoChecked(p_c, &uvr, nullptr, 1e-3)) return std::nullopt;
+  return Eigen::Vector3d(obs.uv.x() - uvr.x(), obs.uv.y() - uvr.y(),
+                         obs.stereo() ? obs.u_right - uvr.z() : 0.0);
+}
+
+absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& camera,
+                                                  const SE3d& camera_from_world,
+                                                  const SE3d& world_from_object_previous,
+                                                  const Matrix6d& world_projector,
+                                                  const std::vector<TwistObservation>& observations,
+                                                  const Vector6d& initial_twist,
+                                                  const TwistEstimatorOptions& options) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  const size_t n = observations.size();
+  TwistEstimate est;
+  est.inliers.assign(n, false);
+  const Basis basis = ProjectorRangeBasis(world_projector);
+  // Start inside range(Π): ξ0 = B Bᵀ Π ξ_init.
+  Vector6d xi = basis * (basis.transpose() * (world_projector * initial_twist));
+
+  auto residuals_at = [&](const Vector6d& twist) {
+    std::vector<std::optional<Eigen::Vector3d>> res(n);
+    for (size_t j = 0; j < n; ++j) {
+      res[j] = TwistResidual(camera, camera_from_world, world_from_object_previous, twist,
+                             observations[j]);
+    }
+    return res;
+  };
+  // MAD over the stacked components of the given observations.
+  auto mad = [&](const std::vector<std::optional<Eigen::Vector3d>>& res,
+                 const std::vector<bool>* subset) {
+    std::vector<double> comps;
+    for (size_t j = 0; j < n; ++j) {
+      if (!res[j] || (subset != nullptr && !(*subset)[j])) continue;
+      comps.push_back((*res[j])(0));
+      comps.push_back((*res[j])(1));
+      if (observations[j].stereo()) comps.push_back((*res[j])(2));
+    }
+    return std::clamp(MadScale(comps), options.min_sigma_px, options.max_sigma_px);
+  };
+
+  std::vector<std::optional<Eigen::Vector3d>> res = residuals_at(xi);
+  std::vector<bool> active(n);
+  for (size_t j = 0; j < n; ++j) active[j] = res[j].has_value();
+  double sigma = mad(res, &active);
+
+  for (int round = 0; round < options.max_rounds; ++round) {
+    const int num_active = static_cast<int>(std::count(active.begin(), active.end(), true));
+    if (num_active < options.min_inliers) break;
+    est.rounds = round + 1;
+    if (basis.cols() > 0) {
+      ceres::Problem::Options problem_options;
+      problem_options.manifold_ownership = ceres::TAKE_OWNERSHIP;
+      ceres::Problem problem(problem_options);
+      double* x = xi.data();
+      for (size_t j = 0; j < n; ++j) {
+        if (!active[j]) continue;
+        ceres::CostFunction* cost =
+            observations[j].stereo()
+                ? MakeCost<3>(camera, camera_from_world, world_from_object_previous,
+                              world_projector, observations[j], 1.0 / sigma, options.use_autodiff)
+                : MakeCost<2>(camera, camera_from_world, world_from_object_previous,
+                              world_projector, observations[j], 1.0 / sigma, options.use_autodiff);
+        problem.AddResidualBlock(cost, new ceres::HuberLoss(options.huber_delta), x);
+      }
+      if (basis.cols() < 6) problem.SetManifold(x, new LinearSubspaceManifold(basis));
+      ceres::Solver::Options solver_options;
+      solver_options.minimizer_type = ceres::TRUST_REGION;
+      solver_options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+      solver_options.linear_solver_type = ceres::DENSE_QR;
+      solver_options.max_num_iterations = options.max_iterations;
+      solver_options.function_tolerance = options.function_tolerance;
+      solver_options.parameter_tolerance = options.parameter_tolerance;
+      solver_options.gradient_tolerance = 1e-14;
+      solver_options.num_threads = 1;
+      solver_options.logging_type = ceres::SILENT;
+      ceres::Solver::Summary summary;
+      ceres::Solve(solver_options, &problem, &summary);
+      est.iterations += static_cast<int>(summary.iterations.size());
+    }
+    // New scale from the current inliers, then re-gate every observation.
+    res = residuals_at(xi);
+    sigma = mad(res, &active);
+    std::vector<bool> next(n, false);
+    for (size_t j = 0; j < n; ++j) {
+      if (!res[j]) continue;
+      const double chi2 = res[j]->squaredNorm() / (sigma * sigma);
+      next[j] = chi2 <= (observations[j].stereo() ? options.chi2_stereo : options.chi2_mono);
+    }
+    const bool stable = next == active;
+    active = std::move(next);
+    if (stable) break;
+  }
+
+  est.twist = world_projector * xi;
+  // Π is idempotent and xi lies in its range, so Π ξ == ξ up to round-off;
+  // report the projected value (what the pose update uses).
+  est.world_from_object = SE3d::Exp(est.twist) * world_from_object_previous;
+  est.inliers = active;
+  est.num_inliers = static_cast<int>(std::count(active.begin(), active.end(), true));
+  est.sigma_px = sigma;
+  double sum = 0.0;
+  for (size_t j = 0; j < n; ++j) {
+    if (active[j] && res[j]) sum += res[j]->squaredNorm();
+  }
+  est.inlier_rms_px = est.num_inliers > 0 ? std::sqrt(sum / est.num_inliers) : 0.0;
+  est.success = est.num_inliers >= options.min_inliers;
+  return est;
+}
+
+}  // namespace twist::objects

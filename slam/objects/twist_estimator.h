@@ -1,0 +1,94 @@
+// Constrained twist estimation of one object between two frames (paper
+// §IV-E, eq. dyna_tracking):
+//
+//   ξ* = argmin_ξ Σ_j ρ_Huber( ‖x_ij − π(c_i T_w · Exp(Π ξ) · w T_o(i−1) · o X_j)‖ / σ )
+//
+// solved by Levenberg–Marquardt (Ceres) on the analytic cost of
+// slam/optimization/cost_functions/twist_tracking_cost.h. σ is the MAD
+// estimate of the residual scale, σ = 1.4826 · median_k |r_k − median(r)| over
+// the stacked residual components of the current inliers; it is re-estimated
+// after every round, observations with ‖r_j/σ‖² above the χ² gate are
+// rejected and the problem is solved again (outliers may come back).
+//
+// Π is the joint's world projector (joints::Joint::WorldProjector()); the
+// solver moves ξ only inside range(Π) (a linear-subspace manifold), so the
+// normal equations stay well conditioned and the result satisfies Π ξ = ξ.
+// Pass Π = I for a free (unconstrained) object.
+#pragma once
+
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "slam/geometry/se3.h"
+#include "slam/geometry/stereo_camera.h"
+
+namespace twist::objects {
+
+// One 2D (or rectified-stereo) observation in frame i of an object point.
+struct TwistObservation {
+  Eigen::Vector3d point_in_object = Eigen::Vector3d::Zero();
+  Eigen::Vector2d uv = Eigen::Vector2d::Zero();  // left image, pixels
+  double u_right = -1.0;                         // right image u; < 0: mono
+  bool stereo() const { return u_right >= 0.0; }
+};
+
+struct TwistEstimatorOptions {
+  int max_rounds = 4;            // solve / MAD / reject rounds
+  int max_iterations = 20;       // LM iterations per round
+  double huber_delta = 1.345;    // Huber threshold in units of σ
+  double min_sigma_px = 0.25;    // floor on the MAD scale (noise-free data)
+  double max_sigma_px = 50.0;    // ceiling for the first round
+  // χ² gates (95 %) on ‖r/σ‖² for mono (2 dof) and stereo (3 dof) residuals.
+  double chi2_mono = 5.991;
+  double chi2_stereo = 7.815;
+  int min_inliers = 4;           // fewer -> not successful
+  bool use_autodiff = false;     // check mode: autodiff twin of the cost
+  double function_tolerance = 1e-12;
+  double parameter_tolerance = 1e-12;
+
+  absl::Status Validate() const;
+};
+
+struct TwistEstimate {
+  bool success = false;
+  // Constrained twist of the step i−1 -> i in the world frame (Π ξ; δt = 1 frame).
+  geometry::Vector6d twist = geometry::Vector6d::Zero();
+  geometry::SE3d world_from_object;  // Exp(Π ξ) · world_from_object_{i−1}
+  std::vector<bool> inliers;         // per observation
+  int num_inliers = 0;
+  double sigma_px = 0.0;             // final MAD scale
+  double inlier_rms_px = 0.0;        // RMS of the inliers' residual norms
+  int rounds = 0;
+  int iterations = 0;                // LM iterations, all rounds
+};
+
+// Basis (6 x k, orthonormal columns) of range(Π); k = rank(Π).
+Eigen::Matrix<double, 6, Eigen::Dynamic> ProjectorRangeBasis(const geometry::Matrix6d& projector);
+
+// MAD scale estimate 1.4826 · median |r − median(r)| (0 for an empty input).
+double MadScale(std::vector<double> residual_components);
+
+// Estimates the twist. `initial_twist` (e.g. the previous step's twist: the
+// constant-velocity prediction) seeds the solver; it is projected with Π.
+// InvalidArgument for bad options; too few inliers is reported as
+// success == false (tracking an object can fail; that is data).
+absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& camera,
+                                                  const geometry::SE3d& camera_from_world,
+                                                  const geometry::SE3d& world_from_object_previous,
+                                                  const geometry::Matrix6d& world_projector,
+                                                  const std::vector<TwistObservation>& observations,
+                                                  const geometry::Vector6d& initial_twist,
+                                                  const TwistEstimatorOptions& options);
+
+// Residual (observation − prediction) of one observation for a given twist;
+// nullopt when the point is not in front of the camera.
+std::optional<Eigen::Vector3d> TwistResidual(const geometry::StereoCamera& camera,
+                                             const geometry::SE3d& camera_from_world,
+                                             const geometry::SE3d& world_from_object_previous,
+                                             const geometry::Vector6d& constrained_twist,
+                                             const TwistObservation& observation);
+
+}  // namespace twist::objects

@@ -1,0 +1,165 @@
+#include "slam/objects/flow_association.h"
+
+#include <random>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "slam/objects/projection_search.h"
+
+namespace twist::objects {
+namespace {
+
+// A textured object (blurred random noise) on a flat background, and the same
+// scene with the object translated by `shift` (sub-pixel, via warpAffine).
+struct Rendered {
+  cv::Mat prev, next;
+  cv::Rect object;
+};
+
+Rendered RenderMovingPatch(const cv::Point2d& shift, uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_int_distribution<int> u(0, 255);
+  cv::Mat texture(120, 160, CV_8UC1);
+  for (int y = 0; y < texture.rows; ++y) {
+    for (int x = 0; x < texture.cols; ++x) texture.at<uint8_t>(y, x) = static_cast<uint8_t>(u(rng));
+  }
+  cv::GaussianBlur(texture, texture, cv::Size(0, 0), 1.5);
+  cv::normalize(texture, texture, 20, 235, cv::NORM_MINMAX);
+  Rendered r;
+  r.object = cv::Rect(100, 80, 160, 120);
+  r.prev = cv::Mat(300, 400, CV_8UC1, cv::Scalar(128));
+  texture.copyTo(r.prev(r.object));
+  // Object mask and its warped version so that only the object moves.
+  cv::Mat moved;
+  const cv::Mat m = (cv::Mat_<double>(2, 3) << 1, 0, shift.x, 0, 1, shift.y);
+  cv::warpAffine(r.prev, moved, m, r.prev.size(), cv::INTER_CUBIC, cv::BORDER_CONSTANT, cv::Scalar(128));
+  cv::Mat mask(r.prev.size(), CV_8UC1, cv::Scalar(0));
+  mask(r.object).setTo(255);
+  cv::Mat moved_mask;
+  cv::warpAffine(mask, moved_mask, m, mask.size(), cv::INTER_NEAREST);
+  r.next = cv::Mat(r.prev.size(), CV_8UC1, cv::Scalar(128));
+  moved.copyTo(r.next, moved_mask);
+  return r;
+}
+
+std::vector<Eigen::Vector2d> InteriorGrid(const cv::Rect& box, int margin, int step) {
+  std::vector<Eigen::Vector2d> pts;
+  for (int y = box.y + margin; y < box.y + box.height - margin; y += step) {
+    for (int x = box.x + margin; x < box.x + box.width - margin; x += step) pts.emplace_back(x + 0.3, y + 0.6);
+  }
+  return pts;
+}
+
+TEST(FlowAssociation, SparseLucasKanadeRecoversKnownShift) {
+  const cv::Point2d shift(6.4, -3.7);
+  const Rendered r = RenderMovingPatch(shift, 1);
+  const auto pts = InteriorGrid(r.object, 15, 10);
+  const auto tracked = TrackSparseFlow(r.prev, r.next, pts, SparseFlowOptions{});
+  ASSERT_TRUE(tracked.ok()) << tracked.status();
+  int ok = 0;
+  double max_err = 0.0;
+  for (size_t k = 0; k < pts.size(); ++k) {
+    if (!(*tracked)[k]) continue;
+    ++ok;
+    max_err = std::max(max_err, ((*(*tracked)[k] - pts[k]) - Eigen::Vector2d(shift.x, shift.y)).norm());
+  }
+  EXPECT_GE(ok, static_cast<int>(0.95 * pts.size()));
+  EXPECT_LT(max_err, 0.1);
+  // A prediction close to the answer gives the same result.
+  std::vector<Eigen::Vector2d> predicted;
+  for (const auto& p : pts) predicted.push_back(p + Eigen::Vector2d(6.0, -3.0));
+  const auto seeded = TrackSparseFlow(r.prev, r.next, pts, SparseFlowOptions{}, &predicted);
+  ASSERT_TRUE(seeded.ok());
+  ASSERT_TRUE((*seeded)[0].has_value());
+  EXPECT_LT(((*(*seeded)[0] - pts[0]) - Eigen::Vector2d(shift.x, shift.y)).norm(), 0.1);
+}
+
+TEST(FlowAssociation, SparseFlowDropsPointsOnTheUntexturedBackground) {
+  const Rendered r = RenderMovingPatch({5.0, 2.0}, 2);
+  const std::vector<Eigen::Vector2d> flat = {{30.0, 30.0}, {350.0, 250.0}};
+  const auto tracked = TrackSparseFlow(r.prev, r.next, flat, SparseFlowOptions{});
+  ASSERT_TRUE(tracked.ok());
+  for (const auto& t : *tracked) EXPECT_FALSE(t.has_value());  // no texture, no track
+  EXPECT_FALSE(TrackSparseFlow(r.prev, cv::Mat(), flat, SparseFlowOptions{}).ok());
+}
+
+TEST(FlowAssociation, DenseFieldFromClientIsSampledBilinearly) {
+  cv::Mat flow(50, 60, CV_32FC2);
+  for (int y = 0; y < flow.rows; ++y) {
+    for (int x = 0; x < flow.cols; ++x) flow.at<cv::Vec2f>(y, x) = cv::Vec2f(0.1f * x, -0.05f * y);
+  }
+  const auto tracked = TrackDenseFlow(flow, {{10.5, 20.25}, {59.5, 3.0}, {-1.0, 2.0}});
+  ASSERT_TRUE(tracked.ok());
+  ASSERT_TRUE((*tracked)[0].has_value());
+  EXPECT_NEAR((*tracked)[0]->x(), 10.5 + 1.05, 1e-5);
+  EXPECT_NEAR((*tracked)[0]->y(), 20.25 - 1.0125, 1e-5);
+  EXPECT_FALSE((*tracked)[1].has_value());  // lands outside the image
+  EXPECT_FALSE((*tracked)[2].has_value());
+  EXPECT_FALSE(TrackDenseFlow(cv::Mat(5, 5, CV_32FC1), {}).ok());
+}
+
+TEST(FlowAssociation, FarnebackDenseFlowOnTheRenderedPatch) {
+  const cv::Point2d shift(3.0, 1.5);
+  const Rendered r = RenderMovingPatch(shift, 3);
+  const auto flow = ComputeDenseFlow(r.prev, r.next);
+  ASSERT_TRUE(flow.ok());
+  const auto pts = InteriorGrid(r.object, 25, 20);
+  const auto tracked = TrackDenseFlow(*flow, pts);
+  ASSERT_TRUE(tracked.ok());
+  double sum = 0.0;
+  int n = 0;
+  for (size_t k = 0; k < pts.size(); ++k) {
+    ASSERT_TRUE((*tracked)[k].has_value());
+    sum += ((*(*tracked)[k] - pts[k]) - Eigen::Vector2d(shift.x, shift.y)).norm();
+    ++n;
+  }
+  EXPECT_LT(sum / n, 0.3);
+}
+
+TEST(ProjectionSearch, PatchSearchFindsTheShiftedPatch) {
+  const cv::Point2d shift(2.3, -1.6);
+  const Rendered r = RenderMovingPatch(shift, 4);
+  ProjectionSearchOptions options;
+  const Eigen::Vector2d p(170.0, 140.0);
+  const cv::Mat patch = ExtractPatch(r.prev, p, options.patch_half_size);
+  ASSERT_FALSE(patch.empty());
+  EXPECT_NEAR(Ncc(patch, patch), 1.0, 1e-6);
+  const auto found = PatchSearch(r.next, patch, p + Eigen::Vector2d(2.0, -2.0), options);
+  ASSERT_TRUE(found.has_value());
+  EXPECT_LT((*found - (p + Eigen::Vector2d(shift.x, shift.y))).norm(), 0.35);
+  // Nothing similar on the flat background.
+  EXPECT_FALSE(PatchSearch(r.next, patch, Eigen::Vector2d(40, 40), options).has_value());
+}
+
+TEST(ProjectionSearch, DescriptorSearchByProjection) {
+  geometry::StereoCamera cam;
+  cam.fx = cam.fy = 500;
+  cam.cx = 320;
+  cam.cy = 240;
+  cam.baseline = 0.5;
+  cam.width = 640;
+  cam.height = 480;
+  const std::vector<Eigen::Vector3d> pts = {{0, 0, 10}, {1, 0, 10}, {0, 1, 10}};
+  std::vector<cv::Mat> desc;
+  for (int k = 0; k < 3; ++k) desc.push_back(cv::Mat(1, 32, CV_8UC1, cv::Scalar(k * 60)));
+  FrameKeypoints kps;
+  // Keypoint 0: near point 1's projection with its descriptor; keypoint 1:
+  // near point 0 with a wrong descriptor; keypoint 2: near point 2, 1 bit off.
+  kps.uv = {{370.0 + 2, 240.0}, {320.0, 241.0}, {320.0, 290.0 - 3}};
+  kps.u_right = {-1, -1, -1};
+  kps.descriptors = cv::Mat(3, 32, CV_8UC1);
+  kps.descriptors.row(0).setTo(60);
+  kps.descriptors.row(1).setTo(255);
+  desc[2].copyTo(kps.descriptors.row(2));
+  kps.descriptors.at<uint8_t>(2, 0) ^= 1;
+  const auto match = SearchByProjection(cam, geometry::SE3d(), pts, desc, {false, false, false}, kps,
+                                        ProjectionSearchOptions{});
+  EXPECT_EQ(match, (std::vector<int>{-1, 0, 2}));
+  const auto skipped = SearchByProjection(cam, geometry::SE3d(), pts, desc, {false, true, false}, kps,
+                                          ProjectionSearchOptions{});
+  EXPECT_EQ(skipped, (std::vector<int>{-1, -1, 2}));
+}
+
+}  // namespace
+}  // namespace twist::objects
