@@ -295,6 +295,16 @@ void Map::EraseKeyFrame(int64_t kf_id) {
   keyframes_.erase(kf_id);
 }
 
+geometry::SE3d CanonicalPose(const geometry::SE3d& pose) {
+  geometry::SE3d current = pose;
+  for (int i = 0; i < 8; ++i) {
+    const geometry::SE3d next(current.unit_quaternion(), current.translation());
+    if (next.unit_quaternion().coeffs() == current.unit_quaternion().coeffs()) return current;
+    current = next;
+  }
+  return current;
+}
+
 std::shared_ptr<FrameFeatures> FinalizeFeatures(FrameFeatures f, int width, int height) {
   const int n = f.size();
   if (f.u_right.size() != static_cast<size_t>(n)) f.u_right.assign(n, -1.f);

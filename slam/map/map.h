@@ -163,6 +163,12 @@ class Map {
   int64_t next_point_id_ = 0;
 };
 
+// The pose with its quaternion at a fixed point of normalisation: SE3's
+// quaternion constructor renormalises, and renormalising is not always
+// idempotent in floating point, so stored poses are canonicalised to make
+// save -> load bit-exact (same results after a resume).
+geometry::SE3d CanonicalPose(const geometry::SE3d& pose);
+
 // Builds FrameFeatures' grid and returns a shared pointer (helper for tests
 // and the system).
 std::shared_ptr<FrameFeatures> FinalizeFeatures(FrameFeatures features, int width, int height);

@@ -1,0 +1,140 @@
+// Local mapping of the static map (ORB-SLAM2-style, no vocabulary):
+//  - keyframe decision (NeedNewKeyFrame) from the tracker's statistics;
+//  - keyframe creation with new points from close stereo keypoints;
+//  - per new keyframe: observations, covisibility, culling of recent points,
+//    new points by two-view triangulation with covisible keyframes
+//    (epipolar-guided descriptor matching), fusion of duplicates with the
+//    neighbours, local bundle adjustment with Ceres (SE3 manifold on 7-scalar
+//    pose blocks, Huber, Schur complement) over the covisible keyframes, and
+//    culling of redundant keyframes.
+// The mapper locks the map's mutex itself; the bundle adjustment solves on a
+// copy without holding it, so tracking can run meanwhile (background mode).
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <list>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "slam/map/map.h"
+
+namespace twist::mapping {
+
+struct MapperOptions {
+  double close_depth_baselines = 40.0;  // ThDepth: stereo points created up to this
+  int min_new_stereo_points = 100;      // at least this many closest stereo points
+  int triangulation_neighbours = 10;
+  int fusion_neighbours = 10;
+  int local_ba_iterations = 10;         // after the first 5 robust iterations
+  int num_threads = 1;                  // Ceres threads
+  double keyframe_redundancy = 0.9;     // cull keyframes with this share of redundant points
+  int max_frames_between_keyframes = 10;
+};
+
+// Inputs of the keyframe decision (ORB-SLAM2's NeedNewKeyFrame, stereo).
+struct KeyFrameDecisionInput {
+  int64_t frame_id = 0;
+  int64_t last_keyframe_frame_id = 0;
+  int64_t last_relocalization_frame_id = -1000000;
+  int num_keyframes = 0;
+  int num_inliers = 0;
+  int reference_tracked_points = 0;  // points of the reference kf with >= min_obs observations
+  int num_tracked_close = 0;
+  int num_untracked_close = 0;
+  bool mapper_idle = true;
+  int mapper_queue = 0;
+  int max_frames = 10;  // fps of the sequence (one keyframe per second at least)
+};
+bool NeedNewKeyFrame(const KeyFrameDecisionInput& in);
+
+struct MappingTimings {
+  double process_ms = 0.0;  // observations, culling, triangulation, fusion
+  double ba_ms = 0.0;
+  double culling_ms = 0.0;
+  int ba_keyframes = 0;
+  int ba_points = 0;
+  int new_points = 0;
+};
+
+class LocalMapper {
+ public:
+  LocalMapper(const geometry::StereoCamera& camera,
+              const features::ScalePyramid& pyramid,
+              const MapperOptions& options);
+
+  // Creates a keyframe from a tracked frame (locks the map): adds the frame's
+  // inlier map points as observations and new points from close stereo
+  // keypoints. `initial`: every stereo keypoint makes a point (first frame).
+  map::KeyFrame* CreateKeyFrame(const map::Frame& frame, map::Map* map, bool initial);
+
+  // The per-keyframe work (see header). Deterministic for a given map.
+  // `abort` (optional) stops the bundle adjustment early.
+  MappingTimings ProcessKeyFrame(int64_t kf_id,
+                                 map::Map* map,
+                                 const std::atomic<bool>* abort = nullptr);
+
+  // Recently created points under probation (saved for exact resume).
+  const std::list<int64_t>& recent_points() const { return recent_points_; }
+  void set_recent_points(std::list<int64_t> p) { recent_points_ = std::move(p); }
+  const MapperOptions& options() const { return options_; }
+
+  // Local bundle adjustment around `kf_id` (exposed for tests). Returns the
+  // number of optimised keyframes.
+  int LocalBundleAdjustment(int64_t kf_id,
+                            map::Map* map,
+                            const std::atomic<bool>* abort,
+                            MappingTimings* timings);
+
+ private:
+  void CullRecentPoints(const map::KeyFrame& kf, map::Map* map);
+  int TriangulateWithNeighbours(map::KeyFrame* kf, map::Map* map);
+  void FuseWithNeighbours(map::KeyFrame* kf, map::Map* map);
+  int Fuse(map::KeyFrame* kf, const std::vector<int64_t>& point_ids, map::Map* map, float radius);
+  void CullKeyFrames(const map::KeyFrame& kf, map::Map* map);
+  int WeightedObservations(const map::MapPoint& p, const map::Map& map) const;
+
+  geometry::StereoCamera camera_;
+  features::ScalePyramid pyramid_;
+  MapperOptions options_;
+  std::list<int64_t> recent_points_;
+};
+
+// Runs a LocalMapper on its own thread (MappingMode::kBackground): keyframes
+// are queued by the tracking thread and processed in order.
+class MappingThread {
+ public:
+  MappingThread(LocalMapper* mapper, map::Map* map);
+  ~MappingThread();
+  void Enqueue(int64_t kf_id);
+  bool idle() const;
+  int queue_size() const;
+  // Asks a running bundle adjustment to stop early (a new keyframe waits).
+  void InterruptBundleAdjustment() { abort_ba_ = true; }
+  // Blocks until the queue is empty and nothing is being processed.
+  void WaitIdle();
+  void Shutdown();
+  // Timings of processed keyframes since the last call.
+  std::vector<MappingTimings> TakeTimings();
+
+ private:
+  void Run();
+
+  LocalMapper* mapper_;
+  map::Map* map_;
+  mutable std::mutex mutex_;
+  std::condition_variable cv_;
+  std::condition_variable idle_cv_;
+  std::deque<int64_t> queue_;
+  bool busy_ = false;
+  bool stop_ = false;
+  std::atomic<bool> abort_ba_{false};
+  std::vector<MappingTimings> timings_;
+  std::thread thread_;
+};
+
+}  // namespace twist::mapping

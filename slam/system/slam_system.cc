@@ -1,0 +1,655 @@
+// SlamSystem implementation: ORB extraction (left and right in parallel),
+// row-band stereo matching, panoptic labels -> static keypoints, camera
+// tracking, keyframe decision and local mapping (synchronous or on a
+// per-session thread), snapshots and exact save/load.
+#include "slam/system/slam_system.h"
+
+#include <cstdio>
+#include <fstream>
+#include <mutex>
+#include <sstream>
+#include <thread>
+
+#include <glog/logging.h>
+#include <opencv2/imgproc.hpp>
+
+#include "slam/common/timer.h"
+#include "slam/features/orb_extractor.h"
+#include "slam/features/stereo_matcher.h"
+#include "slam/map/map.h"
+#include "slam/mapping/local_mapper.h"
+#include "slam/system/binary_io.h"
+#include "slam/tracking/camera_tracker.h"
+
+namespace twist {
+namespace {
+
+constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
+constexpr uint32_t kFormatVersion = 1;
+
+features::OrbOptions OrbOptionsFrom(const SlamOptions& o) {
+  features::OrbOptions orb;
+  orb.num_features = o.num_features;
+  orb.num_levels = o.num_levels;
+  orb.scale_factor = o.scale_factor;
+  orb.fast_threshold = o.fast_threshold;
+  orb.min_fast_threshold = std::min(7, o.fast_threshold);
+  return orb;
+}
+
+tracking::TrackerOptions TrackerOptionsFrom(const SlamOptions& o) {
+  tracking::TrackerOptions t;
+  t.close_depth_baselines = o.max_depth_baselines;
+  return t;
+}
+
+mapping::MapperOptions MapperOptionsFrom(const SlamOptions& o) {
+  mapping::MapperOptions m;
+  m.close_depth_baselines = o.max_depth_baselines;
+  m.local_ba_iterations = o.local_ba_iterations;
+  m.num_threads = o.num_threads;
+  return m;
+}
+
+absl::Status CheckImage(const cv::Mat& m, const char* name) {
+  if (m.empty()) return absl::InvalidArgumentError(std::string(name) + " image is empty");
+  if (m.type() != CV_8UC1 && m.type() != CV_8UC3) {
+    return absl::InvalidArgumentError(std::string(name) +
+                                      " image must be CV_8UC1 (gray) or CV_8UC3 (BGR), got type " +
+                                      std::to_string(m.type()));
+  }
+  return absl::OkStatus();
+}
+
+cv::Mat ToGray(const cv::Mat& m) {
+  if (m.type() == CV_8UC1) return m;
+  cv::Mat g;
+  cv::cvtColor(m, g, cv::COLOR_BGR2GRAY);
+  return g;
+}
+
+// ---------------------------------------------------------- serialisation
+void WriteFeatures(const map::FrameFeatures& f, system_io::BinaryWriter* w) {
+  w->KeyPoints(f.keypoints);
+  w->Mat(f.descriptors);
+  w->PodVector(f.u_right);
+  w->PodVector(f.depth);
+  w->PodVector(f.labels);
+  w->PodVector(f.is_static);
+}
+
+std::shared_ptr<map::FrameFeatures> ReadFeatures(system_io::BinaryReader* r,
+                                                 const geometry::StereoCamera& cam) {
+  map::FrameFeatures f;
+  f.keypoints = r->KeyPoints();
+  f.descriptors = r->Mat();
+  f.u_right = r->PodVector<float>();
+  f.depth = r->PodVector<float>();
+  f.labels = r->PodVector<int32_t>();
+  f.is_static = r->PodVector<uint8_t>();
+  const size_t n = f.keypoints.size();
+  if (!r->ok() || static_cast<size_t>(f.descriptors.rows) != n || f.u_right.size() != n ||
+      f.depth.size() != n || f.labels.size() != n || f.is_static.size() != n ||
+      (n > 0 && (f.descriptors.cols != 32 || f.descriptors.type() != CV_8UC1))) {
+    r->Fail();
+    return nullptr;
+  }
+  return map::FinalizeFeatures(std::move(f), cam.width, cam.height);
+}
+
+void WriteFrame(const map::Frame& fr, system_io::BinaryWriter* w) {
+  w->Pod<uint8_t>(fr.features != nullptr);
+  if (fr.features == nullptr) return;
+  w->Pod(fr.id);
+  w->Pod(fr.timestamp_ns);
+  WriteFeatures(*fr.features, w);
+  w->Pose(fr.camera_from_world);
+  w->PodVector(fr.point_ids);
+  w->Pod<uint64_t>(fr.p_in_world.size());
+  for (const auto& p : fr.p_in_world) w->Bytes(p.data(), 3 * sizeof(double));
+  w->PodVector(fr.matched);
+  w->PodVector(fr.outlier);
+  w->Pod(fr.reference_kf_id);
+}
+
+map::Frame ReadFrame(system_io::BinaryReader* r, const geometry::StereoCamera& cam) {
+  map::Frame fr;
+  if (r->Pod<uint8_t>() == 0) return fr;
+  fr.id = r->Pod<int64_t>();
+  fr.timestamp_ns = r->Pod<int64_t>();
+  fr.features = ReadFeatures(r, cam);
+  fr.camera_from_world = r->Pose();
+  fr.point_ids = r->PodVector<int64_t>();
+  const uint64_t n = r->Count(24);
+  fr.p_in_world.resize(n);
+  for (auto& p : fr.p_in_world) {
+    for (int k = 0; k < 3; ++k) p[k] = r->Pod<double>();
+  }
+  fr.matched = r->PodVector<uint8_t>();
+  fr.outlier = r->PodVector<uint8_t>();
+  fr.reference_kf_id = r->Pod<int64_t>();
+  const size_t m = fr.features ? fr.features->keypoints.size() : 0;
+  if (fr.point_ids.size() != m || fr.p_in_world.size() != m || fr.matched.size() != m ||
+      fr.outlier.size() != m) {
+    r->Fail();
+  }
+  return fr;
+}
+
+void WriteConfig(const SessionConfig& c, system_io::BinaryWriter* w) {
+  const auto& cam = c.camera;
+  w->Pod(cam.fx);
+  w->Pod(cam.fy);
+  w->Pod(cam.cx);
+  w->Pod(cam.cy);
+  w->Pod(cam.baseline);
+  w->Pod<int32_t>(cam.width);
+  w->Pod<int32_t>(cam.height);
+  w->String(c.classes.ToText());
+  const auto& o = c.options;
+  w->Pod<int32_t>(o.num_features);
+  w->Pod<int32_t>(o.num_levels);
+  w->Pod(o.scale_factor);
+  w->Pod<int32_t>(o.fast_threshold);
+  w->Pod(o.max_depth_baselines);
+  w->Pod<int32_t>(static_cast<int32_t>(o.mapping_mode));
+  w->Pod<int32_t>(o.local_ba_iterations);
+  w->Pod<int32_t>(o.num_threads);
+  w->Pod<uint8_t>(o.use_masks);
+  w->Pod<uint8_t>(o.track_objects);
+  w->Pod<uint8_t>(o.constrain_objects);
+  w->Pod(o.temporal_window_s);
+  w->Pod(o.seed);
+}
+
+absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r) {
+  SessionConfig c;
+  auto& cam = c.camera;
+  cam.fx = r->Pod<double>();
+  cam.fy = r->Pod<double>();
+  cam.cx = r->Pod<double>();
+  cam.cy = r->Pod<double>();
+  cam.baseline = r->Pod<double>();
+  cam.width = r->Pod<int32_t>();
+  cam.height = r->Pod<int32_t>();
+  const std::string classes = r->String();
+  auto& o = c.options;
+  o.num_features = r->Pod<int32_t>();
+  o.num_levels = r->Pod<int32_t>();
+  o.scale_factor = r->Pod<double>();
+  o.fast_threshold = r->Pod<int32_t>();
+  o.max_depth_baselines = r->Pod<double>();
+  o.mapping_mode = static_cast<MappingMode>(r->Pod<int32_t>());
+  o.local_ba_iterations = r->Pod<int32_t>();
+  o.num_threads = r->Pod<int32_t>();
+  o.use_masks = r->Pod<uint8_t>() != 0;
+  o.track_objects = r->Pod<uint8_t>() != 0;
+  o.constrain_objects = r->Pod<uint8_t>() != 0;
+  o.temporal_window_s = r->Pod<double>();
+  o.seed = r->Pod<uint64_t>();
+  if (!r->ok()) return absl::DataLossError("state file truncated in the configuration");
+  absl::StatusOr<joints::ClassTable> table = joints::ClassTable::FromText(classes);
+  if (!table.ok()) {
+    return absl::DataLossError("state file has an invalid class table: " +
+                               std::string(table.status().message()));
+  }
+  c.classes = *std::move(table);
+  return c;
+}
+
+// ------------------------------------------------------------------ engine
+class SlamSystemImpl final : public SlamSystem {
+ public:
+  explicit SlamSystemImpl(const SessionConfig& config)
+      : config_(config),
+        orb_(OrbOptionsFrom(config.options)),
+        map_(config.camera, orb_.pyramid()),
+        tracker_(config.camera, orb_.pyramid(), TrackerOptionsFrom(config.options)),
+        mapper_(config.camera, orb_.pyramid(), MapperOptionsFrom(config.options)) {
+    if (config_.options.mapping_mode == MappingMode::kBackground) {
+      thread_ = std::make_unique<mapping::MappingThread>(&mapper_, &map_);
+    }
+  }
+  ~SlamSystemImpl() override { Shutdown(); }
+
+  absl::StatusOr<FrameResult> Process(const StereoFrame& frame) override;
+  MapSnapshot Snapshot() const override;
+  absl::Status Save(const std::string& path) const override;
+  const SessionConfig& config() const override { return config_; }
+  int64_t frames_processed() const override { return frames_processed_; }
+  void Shutdown() override {
+    if (thread_ != nullptr) thread_->Shutdown();
+    shutdown_ = true;
+  }
+
+  absl::Status Restore(system_io::BinaryReader* r);
+
+ private:
+  absl::Status ValidateInput(const StereoFrame& frame) const;
+  std::shared_ptr<map::FrameFeatures> ExtractFeatures(const StereoFrame& frame,
+                                                      std::vector<StageTiming>* timings) const;
+
+  SessionConfig config_;
+  features::OrbExtractor orb_;
+  map::Map map_;
+  tracking::CameraTracker tracker_;
+  mapping::LocalMapper mapper_;
+  std::unique_ptr<mapping::MappingThread> thread_;
+  int64_t frames_processed_ = 0;
+  bool has_last_timestamp_ = false;
+  int64_t last_timestamp_ns_ = 0;
+  int64_t first_timestamp_ns_ = 0;
+  int max_frames_ = 10;  // frames per second, from the first two timestamps
+  bool shutdown_ = false;
+};
+
+absl::Status SlamSystemImpl::ValidateInput(const StereoFrame& frame) const {
+  if (absl::Status s = CheckImage(frame.left, "left"); !s.ok()) return s;
+  if (absl::Status s = CheckImage(frame.right, "right"); !s.ok()) return s;
+  if (frame.left.size() != frame.right.size() || frame.left.type() != frame.right.type()) {
+    return absl::InvalidArgumentError("left and right images differ in size or type");
+  }
+  const auto& cam = config_.camera;
+  if (frame.left.cols != cam.width || frame.left.rows != cam.height) {
+    return absl::InvalidArgumentError(
+        "image size " + std::to_string(frame.left.cols) + "x" + std::to_string(frame.left.rows) +
+        " differs from the calibration " + std::to_string(cam.width) + "x" +
+        std::to_string(cam.height));
+  }
+  if (!frame.panoptic.empty()) {
+    if (frame.panoptic.size() != frame.left.size()) {
+      return absl::InvalidArgumentError("panoptic mask size differs from the image size");
+    }
+    if (frame.panoptic.type() != CV_16UC1 && frame.panoptic.type() != CV_32SC1) {
+      return absl::InvalidArgumentError("panoptic mask must be CV_16UC1 or CV_32SC1");
+    }
+  }
+  if (!frame.flow.empty() && (frame.flow.size() != frame.left.size() || frame.flow.type() != CV_32FC2)) {
+    return absl::InvalidArgumentError("optical flow must be CV_32FC2 of the image size");
+  }
+  if (has_last_timestamp_ && frame.timestamp_ns <= last_timestamp_ns_) {
+    return absl::InvalidArgumentError("timestamp " + std::to_string(frame.timestamp_ns) +
+                                      " ns is not after the previous frame's " +
+                                      std::to_string(last_timestamp_ns_) + " ns");
+  }
+  return absl::OkStatus();
+}
+
+std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
+    const StereoFrame& frame,
+    std::vector<StageTiming>* timings) const {
+  Stopwatch sw;
+  const cv::Mat left = ToGray(frame.left);
+  const cv::Mat right = ToGray(frame.right);
+  map::FrameFeatures f;
+  std::vector<cv::KeyPoint> right_kps;
+  cv::Mat right_desc;
+  std::vector<cv::Mat> left_levels, right_levels;
+  std::thread right_thread(
+      [&] { orb_.Extract(right, cv::Mat(), &right_kps, &right_desc, &right_levels); });
+  orb_.Extract(left, cv::Mat(), &f.keypoints, &f.descriptors, &left_levels);
+  right_thread.join();
+  timings->push_back({"orb", sw.ElapsedMs()});
+  sw.Restart();
+  features::StereoMatchResult st =
+      features::MatchStereo(config_.camera, orb_.pyramid(), f.keypoints, f.descriptors, right_kps,
+                            right_desc, left_levels, right_levels);
+  f.u_right = std::move(st.u_right);
+  f.depth = std::move(st.depth);
+  // Panoptic labels; a-priori dynamic classes leave the static pipeline.
+  const int n = static_cast<int>(f.keypoints.size());
+  f.labels.assign(n, 0);
+  f.is_static.assign(n, 1);
+  if (!frame.panoptic.empty()) {
+    for (int i = 0; i < n; ++i) {
+      const int x = std::clamp(cvRound(f.keypoints[i].pt.x), 0, frame.panoptic.cols - 1);
+      const int y = std::clamp(cvRound(f.keypoints[i].pt.y), 0, frame.panoptic.rows - 1);
+      const int32_t label = frame.panoptic.type() == CV_16UC1
+                                ? static_cast<int32_t>(frame.panoptic.at<uint16_t>(y, x))
+                                : frame.panoptic.at<int32_t>(y, x);
+      f.labels[i] = label;
+      if (config_.options.use_masks && config_.classes.IsDynamic(label / 1000)) f.is_static[i] = 0;
+    }
+  }
+  timings->push_back({"stereo", sw.ElapsedMs()});
+  return map::FinalizeFeatures(std::move(f), config_.camera.width, config_.camera.height);
+}
+
+absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
+  if (shutdown_) return absl::FailedPreconditionError("the SLAM system has been shut down");
+  if (absl::Status s = ValidateInput(input); !s.ok()) return s;
+  Stopwatch total;
+  FrameResult result;
+  result.index = input.index;
+  result.timestamp_ns = input.timestamp_ns;
+
+  map::Frame frame;
+  frame.id = frames_processed_;
+  frame.timestamp_ns = input.timestamp_ns;
+  frame.features = ExtractFeatures(input, &result.timings);
+  frame.ResetMatches();
+
+  if (frames_processed_ == 1 && input.timestamp_ns > first_timestamp_ns_) {
+    const double fps = 1e9 / static_cast<double>(input.timestamp_ns - first_timestamp_ns_);
+    max_frames_ = std::clamp(static_cast<int>(std::lround(fps)), 1, 100);
+  }
+  if (frames_processed_ == 0) first_timestamp_ns_ = input.timestamp_ns;
+
+  Stopwatch sw;
+  map::KeyFrame* new_kf = nullptr;
+  TrackingState state;
+  if (tracker_.state() == TrackingState::kNotInitialized) {
+    state = TrackingState::kNotInitialized;
+    if (tracker_.CanInitialize(frame)) {
+      frame.camera_from_world = geometry::SE3d();
+      new_kf = mapper_.CreateKeyFrame(frame, &map_, /*initial=*/true);
+      {
+        std::lock_guard<std::mutex> lock(map_.mutex());
+        for (int i = 0; i < frame.features->size(); ++i) {
+          if (new_kf->point_ids[i] >= 0) {
+            frame.SetMatch(i, new_kf->point_ids[i], map_.point(new_kf->point_ids[i])->p_in_world);
+          }
+        }
+      }
+      tracker_.Initialize(frame, *new_kf);
+      state = TrackingState::kOk;
+    }
+    result.timings.push_back({"track", sw.ElapsedMs()});
+  } else {
+    if (thread_ != nullptr && !thread_->idle()) thread_->InterruptBundleAdjustment();
+    state = tracker_.Track(&frame, &map_);
+    result.timings.push_back({"track", sw.ElapsedMs()});
+    sw.Restart();
+    if (state == TrackingState::kOk || state == TrackingState::kRelocalized) {
+      mapping::KeyFrameDecisionInput in;
+      {
+        std::lock_guard<std::mutex> lock(map_.mutex());
+        in.num_keyframes = map_.NumGoodKeyFrames();
+        const map::KeyFrame* ref = map_.keyframe(tracker_.reference_kf_id());
+        in.reference_tracked_points = ref ? ref->TrackedPoints(in.num_keyframes <= 2 ? 2 : 3, map_) : 0;
+      }
+      in.frame_id = frame.id;
+      in.last_keyframe_frame_id = tracker_.last_keyframe_frame_id();
+      in.last_relocalization_frame_id = tracker_.last_relocalization_frame_id();
+      in.num_inliers = tracker_.stats().num_inliers;
+      in.num_tracked_close = tracker_.stats().num_tracked_close;
+      in.num_untracked_close = tracker_.stats().num_untracked_close;
+      in.mapper_idle = thread_ == nullptr || thread_->idle();
+      in.mapper_queue = thread_ == nullptr ? 0 : thread_->queue_size();
+      in.max_frames = max_frames_;
+      if (mapping::NeedNewKeyFrame(in)) {
+        new_kf = mapper_.CreateKeyFrame(frame, &map_, /*initial=*/false);
+        tracker_.OnKeyFrameCreated(frame, *new_kf);
+      }
+    }
+    result.timings.push_back({"keyframe", sw.ElapsedMs()});
+  }
+  if (new_kf != nullptr) {
+    const int64_t kf_id = new_kf->id;
+    if (thread_ != nullptr) {
+      thread_->Enqueue(kf_id);
+    } else {
+      const mapping::MappingTimings t = mapper_.ProcessKeyFrame(kf_id, &map_);
+      result.timings.push_back({"mapping", t.process_ms});
+      result.timings.push_back({"ba", t.ba_ms});
+      result.timings.push_back({"kf_culling", t.culling_ms});
+    }
+  }
+  if (thread_ != nullptr) {
+    for (const auto& t : thread_->TakeTimings()) {
+      result.timings.push_back({"mapping", t.process_ms});
+      result.timings.push_back({"ba", t.ba_ms});
+    }
+  }
+
+  result.state = state;
+  result.world_from_camera = frame.camera_from_world.Inverse();
+  result.is_keyframe = new_kf != nullptr;
+  result.num_tracked_points = state == TrackingState::kNotInitialized ? 0 : tracker_.stats().num_inliers;
+  {
+    std::lock_guard<std::mutex> lock(map_.mutex());
+    result.num_map_points = map_.NumGoodPoints();
+    result.num_keyframes = map_.NumGoodKeyFrames();
+  }
+  result.timings.push_back({"total", total.ElapsedMs()});
+  ++frames_processed_;
+  has_last_timestamp_ = true;
+  last_timestamp_ns_ = input.timestamp_ns;
+  return result;
+}
+
+MapSnapshot SlamSystemImpl::Snapshot() const {
+  MapSnapshot s;
+  std::lock_guard<std::mutex> lock(map_.mutex());
+  s.points.reserve(map_.points().size());
+  for (const auto& [id, p] : map_.points()) {
+    if (p->bad) continue;
+    MapSnapshot::Point q;
+    q.p_in_world = p->p_in_world;
+    q.class_id = p->label / 1000;
+    s.points.push_back(q);
+  }
+  for (const auto& [id, kf] : map_.keyframes()) {
+    s.keyframes.push_back({kf->id, kf->timestamp_ns, kf->camera_from_world.Inverse()});
+  }
+  return s;
+}
+
+absl::Status SlamSystemImpl::Save(const std::string& path) const {
+  if (thread_ != nullptr) thread_->WaitIdle();
+  system_io::BinaryWriter w;
+  w.Bytes(kMagic, sizeof(kMagic));
+  w.Pod(kFormatVersion);
+  WriteConfig(config_, &w);
+  w.Pod(frames_processed_);
+  w.Pod<uint8_t>(has_last_timestamp_);
+  w.Pod(last_timestamp_ns_);
+  w.Pod(first_timestamp_ns_);
+  w.Pod<int32_t>(max_frames_);
+  {
+    std::lock_guard<std::mutex> lock(map_.mutex());
+    w.Pod(map_.next_keyframe_id());
+    w.Pod(map_.next_point_id());
+    w.Pod<uint64_t>(map_.keyframes().size());
+    for (const auto& [id, kf] : map_.keyframes()) {
+      w.Pod(kf->id);
+      w.Pod(kf->frame_id);
+      w.Pod(kf->timestamp_ns);
+      WriteFeatures(*kf->features, &w);
+      w.Pose(kf->camera_from_world);
+      w.PodVector(kf->point_ids);
+      w.Pod<uint64_t>(kf->connections.size());
+      for (const auto& [o, wt] : kf->connections) {
+        w.Pod(o);
+        w.Pod<int32_t>(wt);
+      }
+      w.PodVector(kf->ordered_connections);
+      w.Pod<uint8_t>(kf->bad);
+    }
+    w.Pod<uint64_t>(map_.points().size());
+    for (const auto& [id, p] : map_.points()) {
+      w.Pod(p->id);
+      w.Bytes(p->p_in_world.data(), 3 * sizeof(double));
+      w.Bytes(p->descriptor.data(), p->descriptor.size());
+      w.Bytes(p->normal.data(), 3 * sizeof(double));
+      w.Pod(p->min_distance);
+      w.Pod(p->max_distance);
+      w.Pod<uint64_t>(p->observations.size());
+      for (const auto& [k, idx] : p->observations) {
+        w.Pod(k);
+        w.Pod<int32_t>(idx);
+      }
+      w.Pod(p->reference_kf_id);
+      w.Pod(p->first_kf_id);
+      w.Pod<int32_t>(p->visible);
+      w.Pod<int32_t>(p->found);
+      w.Pod(p->label);
+      w.Pod<uint8_t>(p->bad);
+      w.Pod(p->last_local_map_frame);
+    }
+  }
+  const tracking::CameraTracker::State ts = tracker_.GetState();
+  w.Pod<int32_t>(static_cast<int32_t>(ts.state));
+  WriteFrame(ts.last_frame, &w);
+  w.Pod<uint8_t>(ts.last_frame_is_keyframe);
+  w.Pod<uint8_t>(ts.velocity.has_value());
+  w.Pose(ts.velocity.value_or(geometry::SE3d()));
+  w.Pose(ts.last_from_reference);
+  w.Pod(ts.reference_kf_id);
+  w.Pod(ts.last_kf_frame_id);
+  w.Pod(ts.last_reloc_frame_id);
+  const std::vector<int64_t> recent(mapper_.recent_points().begin(), mapper_.recent_points().end());
+  w.PodVector(recent);
+  w.Bytes(kMagic, sizeof(kMagic));  // trailer: detects truncation
+
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    if (!out) return absl::UnavailableError("cannot open " + tmp + " for writing");
+    out.write(w.buffer().data(), static_cast<std::streamsize>(w.buffer().size()));
+    out.flush();
+    if (!out) {
+      std::remove(tmp.c_str());
+      return absl::UnavailableError("failed writing " + tmp);
+    }
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    return absl::UnavailableError("cannot rename " + tmp + " to " + path);
+  }
+  return absl::OkStatus();
+}
+
+absl::Status SlamSystemImpl::Restore(system_io::BinaryReader* r) {
+  frames_processed_ = r->Pod<int64_t>();
+  has_last_timestamp_ = r->Pod<uint8_t>() != 0;
+  last_timestamp_ns_ = r->Pod<int64_t>();
+  first_timestamp_ns_ = r->Pod<int64_t>();
+  max_frames_ = r->Pod<int32_t>();
+  const int64_t next_kf = r->Pod<int64_t>();
+  const int64_t next_point = r->Pod<int64_t>();
+  const auto& cam = config_.camera;
+  const uint64_t num_kfs = r->Count(64);
+  for (uint64_t k = 0; k < num_kfs && r->ok(); ++k) {
+    auto kf = std::make_unique<map::KeyFrame>();
+    kf->id = r->Pod<int64_t>();
+    kf->frame_id = r->Pod<int64_t>();
+    kf->timestamp_ns = r->Pod<int64_t>();
+    kf->features = ReadFeatures(r, cam);
+    kf->camera_from_world = r->Pose();
+    kf->point_ids = r->PodVector<int64_t>();
+    const uint64_t nc = r->Count(12);
+    for (uint64_t c = 0; c < nc && r->ok(); ++c) {
+      const int64_t o = r->Pod<int64_t>();
+      kf->connections[o] = r->Pod<int32_t>();
+    }
+    kf->ordered_connections = r->PodVector<int64_t>();
+    kf->bad = r->Pod<uint8_t>() != 0;
+    if (!r->ok() || kf->features == nullptr ||
+        kf->point_ids.size() != kf->features->keypoints.size()) {
+      return absl::DataLossError("state file has a corrupt keyframe");
+    }
+    map_.InsertKeyFrame(std::move(kf));
+  }
+  const uint64_t num_points = r->Count(100);
+  for (uint64_t k = 0; k < num_points && r->ok(); ++k) {
+    auto p = std::make_unique<map::MapPoint>();
+    p->id = r->Pod<int64_t>();
+    for (int c = 0; c < 3; ++c) p->p_in_world[c] = r->Pod<double>();
+    for (auto& b : p->descriptor) b = r->Pod<uint8_t>();
+    for (int c = 0; c < 3; ++c) p->normal[c] = r->Pod<double>();
+    p->min_distance = r->Pod<float>();
+    p->max_distance = r->Pod<float>();
+    const uint64_t no = r->Count(12);
+    for (uint64_t o = 0; o < no && r->ok(); ++o) {
+      const int64_t kf = r->Pod<int64_t>();
+      p->observations[kf] = r->Pod<int32_t>();
+    }
+    p->reference_kf_id = r->Pod<int64_t>();
+    p->first_kf_id = r->Pod<int64_t>();
+    p->visible = r->Pod<int32_t>();
+    p->found = r->Pod<int32_t>();
+    p->label = r->Pod<int32_t>();
+    p->bad = r->Pod<uint8_t>() != 0;
+    p->last_local_map_frame = r->Pod<int64_t>();
+    if (!r->ok()) break;
+    map_.InsertPoint(std::move(p));
+  }
+  map_.set_next_ids(next_kf, next_point);
+  tracking::CameraTracker::State ts;
+  ts.state = static_cast<TrackingState>(r->Pod<int32_t>());
+  ts.last_frame = ReadFrame(r, cam);
+  ts.last_frame_is_keyframe = r->Pod<uint8_t>() != 0;
+  const bool has_velocity = r->Pod<uint8_t>() != 0;
+  const geometry::SE3d velocity = r->Pose();
+  if (has_velocity) ts.velocity = velocity;
+  ts.last_from_reference = r->Pose();
+  ts.reference_kf_id = r->Pod<int64_t>();
+  ts.last_kf_frame_id = r->Pod<int64_t>();
+  ts.last_reloc_frame_id = r->Pod<int64_t>();
+  const std::vector<int64_t> recent = r->PodVector<int64_t>();
+  char trailer[8];
+  for (char& c : trailer) c = r->Pod<char>();
+  if (!r->ok() || std::memcmp(trailer, kMagic, 8) != 0 || !r->at_end()) {
+    return absl::DataLossError("state file is truncated or corrupt");
+  }
+  // Cross-references must resolve.
+  for (const auto& [id, kf] : map_.keyframes()) {
+    for (int64_t pid : kf->point_ids) {
+      if (pid >= 0 && map_.point(pid) == nullptr) {
+        return absl::DataLossError("state file: keyframe references a missing point");
+      }
+    }
+  }
+  for (const auto& [id, p] : map_.points()) {
+    for (const auto& [k, idx] : p->observations) {
+      const map::KeyFrame* kf = map_.keyframe(k);
+      if (kf == nullptr || idx < 0 || idx >= static_cast<int>(kf->point_ids.size())) {
+        return absl::DataLossError("state file: point observation references a missing keyframe");
+      }
+    }
+  }
+  if (static_cast<int32_t>(ts.state) < 0 || static_cast<int32_t>(ts.state) > 3) {
+    return absl::DataLossError("state file: invalid tracking state");
+  }
+  tracker_.SetState(std::move(ts));
+  mapper_.set_recent_points(std::list<int64_t>(recent.begin(), recent.end()));
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<SlamSystem>> SlamSystem::Create(const SessionConfig& config) {
+  if (absl::Status s = config.Validate(); !s.ok()) return s;
+  return std::unique_ptr<SlamSystem>(new SlamSystemImpl(config));
+}
+
+absl::StatusOr<std::unique_ptr<SlamSystem>> SlamSystem::Load(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return absl::NotFoundError("cannot open state file " + path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  const std::string data = ss.str();
+  system_io::BinaryReader r(data);
+  char magic[8];
+  for (char& c : magic) c = r.Pod<char>();
+  if (!r.ok() || std::memcmp(magic, kMagic, 8) != 0) {
+    return absl::DataLossError(path + " is not a TwistSLAM state file");
+  }
+  const uint32_t version = r.Pod<uint32_t>();
+  if (version != kFormatVersion) {
+    return absl::DataLossError(path + ": unsupported state format version " + std::to_string(version));
+  }
+  absl::StatusOr<SessionConfig> config = ReadConfig(&r);
+  if (!config.ok()) return config.status();
+  if (absl::Status s = config->Validate(); !s.ok()) {
+    return absl::DataLossError("state file has an invalid configuration: " + std::string(s.message()));
+  }
+  auto sys = std::make_unique<SlamSystemImpl>(*config);
+  if (absl::Status s = sys->Restore(&r); !s.ok()) {
+    return absl::DataLossError(path + ": " + std::string(s.message()));
+  }
+  return std::unique_ptr<SlamSystem>(std::move(sys));
+}
+
+}  // namespace twist

@@ -1,0 +1,126 @@
+// Camera tracking against the static map (ORB-SLAM2-style, without a
+// vocabulary):
+//  1. constant-velocity prediction + projection search of the previous frame's
+//     points (map points and temporary stereo points);
+//  2. fallback: projection search of the reference keyframe's points from the
+//     last pose with wide windows;
+//  3. local map: keyframes sharing points with the frame plus their best
+//     covisible neighbours; projection search of their points;
+//  4. robust pose-only optimisation after each search;
+//  5. when lost: relocalisation by descriptor matching against recent
+//     keyframes, PnP RANSAC (OpenCV, deterministic) and refinement.
+// Only keypoints flagged `is_static` take part (dynamic classes are masked
+// out by the caller).
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+#include "slam/common/frame_result.h"
+#include "slam/map/map.h"
+#include "slam/tracking/pose_optimizer.h"
+
+namespace twist::tracking {
+
+struct TrackerOptions {
+  double close_depth_baselines = 40.0;  // "close" stereo points (ThDepth)
+  int min_init_stereo_points = 100;     // to initialise from one stereo frame
+  int motion_search_radius = 7;         // px at level 0, scaled by level
+  int reference_search_radius = 20;     // px, fallback search
+  int min_motion_inliers = 10;
+  int min_local_map_inliers = 30;
+  int min_relocalized_inliers = 50;
+  int recent_relocalization_frames = 10;  // frames that need the higher bar
+  int max_local_keyframes = 80;
+  int relocalization_keyframes = 40;    // most recent keyframes tried
+  int max_temporary_points = 100;       // extra VO points kept from last frame
+  PoseOptimizerOptions pose;
+};
+
+// Statistics the keyframe policy needs.
+struct TrackingStats {
+  int num_inliers = 0;          // matched map points that are inliers
+  int num_tracked_close = 0;    // close stereo keypoints with an inlier map point
+  int num_untracked_close = 0;  // close stereo keypoints without
+};
+
+class CameraTracker {
+ public:
+  CameraTracker(const geometry::StereoCamera& camera,
+                const features::ScalePyramid& pyramid,
+                const TrackerOptions& options);
+
+  // Tracks `frame` (features filled, matches reset) against `map`, locking
+  // the map's mutex. Sets frame->camera_from_world and the matches. Returns
+  // kNotInitialized until Initialize() has been called.
+  TrackingState Track(map::Frame* frame, map::Map* map);
+
+  // True when `frame` can start the map (enough close stereo points).
+  bool CanInitialize(const map::Frame& frame) const;
+  // Called with the first keyframe (made from `frame`) after initialisation.
+  void Initialize(const map::Frame& frame, const map::KeyFrame& kf);
+  // Called after a new keyframe was made from the last tracked frame.
+  void OnKeyFrameCreated(const map::Frame& frame, const map::KeyFrame& kf);
+
+  // Forces the lost state (tests, operator command): the next frame
+  // relocalises.
+  void ForceLost() { state_ = TrackingState::kLost; }
+
+  TrackingState state() const { return state_; }
+  const TrackingStats& stats() const { return stats_; }
+  int64_t reference_kf_id() const { return reference_kf_id_; }
+  int64_t last_keyframe_frame_id() const { return last_kf_frame_id_; }
+  int64_t last_relocalization_frame_id() const { return last_reloc_frame_id_; }
+  const map::Frame& last_frame() const { return last_frame_; }
+  const std::optional<geometry::SE3d>& velocity() const { return velocity_; }
+  const TrackerOptions& options() const { return options_; }
+
+  // Full internal state for save/load (exact resume).
+  struct State {
+    TrackingState state = TrackingState::kNotInitialized;
+    map::Frame last_frame;
+    bool last_frame_is_keyframe = false;
+    std::optional<geometry::SE3d> velocity;
+    geometry::SE3d last_from_reference;  // last frame pose relative to its reference kf
+    int64_t reference_kf_id = -1;
+    int64_t last_kf_frame_id = -1;
+    int64_t last_reloc_frame_id = -1000000;
+  };
+  State GetState() const;
+  void SetState(State s);
+
+ private:
+  bool TrackWithMotionModel(map::Frame* frame, map::Map* map);
+  bool TrackReferenceKeyFrame(map::Frame* frame, map::Map* map);
+  bool TrackLocalMap(map::Frame* frame, map::Map* map, bool just_relocalized);
+  bool Relocalize(map::Frame* frame, map::Map* map);
+  void UpdateLastFrame(map::Map* map);
+
+  // Matches the points of `source` keypoints (positions, descriptors) into
+  // `frame` by projection; returns the number of new matches.
+  int SearchLastFrame(map::Frame* frame, const map::Frame& last, float radius) const;
+  int SearchKeyFramePoints(map::Frame* frame,
+                           const map::KeyFrame& kf,
+                           const map::Map& map,
+                           float radius,
+                           int max_distance) const;
+  int SearchLocalPoints(map::Frame* frame, map::Map* map, const std::vector<int64_t>& local_points);
+  int Optimize(map::Frame* frame);
+  void ComputeStats(const map::Frame& frame);
+
+  geometry::StereoCamera camera_;
+  features::ScalePyramid pyramid_;
+  TrackerOptions options_;
+  TrackingState state_ = TrackingState::kNotInitialized;
+  map::Frame last_frame_;
+  bool last_frame_is_keyframe_ = false;
+  std::optional<geometry::SE3d> velocity_;
+  geometry::SE3d last_from_reference_;
+  int64_t reference_kf_id_ = -1;
+  int64_t last_kf_frame_id_ = -1;
+  int64_t last_reloc_frame_id_ = -1000000;
+  TrackingStats stats_;
+};
+
+}  // namespace twist::tracking
