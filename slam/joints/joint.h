@@ -75,6 +75,8 @@ class Joint {
   // Twist in world frame -> joint frame and back (adjoint maps).
   geometry::Vector6d WorldToJoint(const geometry::Vector6d& twist_in_world) const;
   geometry::Vector6d JointToWorld(const geometry::Vector6d& twist_in_joint) const;
+  // Π · twist_in_world: the part of a world twist the joint allows.
+  geometry::Vector6d Project(const geometry::Vector6d& twist_in_world) const;
 
  private:
   JointType type_ = JointType::kFree;
