@@ -1,0 +1,96 @@
+// Render time of the synthetic generator: for every scenario, renders
+// `--frames` stereo frames (left + right + panoptic mask, plus the labels) at
+// 1242x375 and prints the median and p95 time per frame, then one JSON line.
+//
+//   sim_bench [--frames N] [--threads T] [--scenario NAME] [--json FILE]
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "slam/common/timer.h"
+#include "slam/sim/labels.h"
+#include "slam/sim/renderer.h"
+#include "slam/sim/scenarios.h"
+#include "slam/sim/writer.h"
+
+namespace {
+
+double Percentile(std::vector<double> v, double p) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  const size_t i = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size() - 1) + 0.5));
+  return v[i];
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int frames = 20;
+  int threads = 2;
+  std::string only, json_path;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    const bool has_value = i + 1 < argc;
+    if (a == "--frames" && has_value) {
+      frames = std::atoi(argv[++i]);
+    } else if (a == "--threads" && has_value) {
+      threads = std::atoi(argv[++i]);
+    } else if (a == "--scenario" && has_value) {
+      only = argv[++i];
+    } else if (a == "--json" && has_value) {
+      json_path = argv[++i];
+    } else {
+      std::fprintf(stderr, "usage: sim_bench [--frames N] [--threads T] [--scenario NAME] [--json FILE]\n");
+      return 2;
+    }
+  }
+  if (frames < 1) frames = 1;
+  std::string json = "{\"benchmark\":\"sim_render\",\"width\":1242,\"height\":375,\"threads\":" +
+                     std::to_string(threads) + ",\"frames\":" + std::to_string(frames) + ",\"scenarios\":[";
+  std::printf("%-30s %10s %10s %10s %10s\n", "scenario", "render_med", "render_p95", "labels_med",
+              "frame_med");
+  bool first = true;
+  for (const twist::sim::ScenarioInfo& info : twist::sim::ListScenarios()) {
+    if (!only.empty() && info.name != only) continue;
+    absl::StatusOr<twist::sim::Scenario> sc = twist::sim::MakeScenario(info.name, 1, frames);
+    if (!sc.ok()) {
+      std::fprintf(stderr, "%s\n", std::string(sc.status().message()).c_str());
+      return 1;
+    }
+    twist::sim::RenderOptions options;
+    options.num_threads = threads;
+    const twist::sim::Renderer renderer(sc->camera, options);
+    std::vector<double> render_ms, label_ms, total_ms;
+    for (int i = 0; i < frames; ++i) {
+      twist::sim::Exposure left, right;
+      twist::sim::FrameExposures(*sc, i, &left, &right);
+      twist::Stopwatch watch;
+      const twist::sim::StereoRender r =
+          renderer.RenderStereo(sc->scene, sc->TimeOf(i), sc->WorldFromCamera(i), left, right);
+      render_ms.push_back(watch.ElapsedMs());
+      twist::Stopwatch label_watch;
+      const auto labels = twist::sim::ComputeFrameLabels(*sc, renderer, i, r.panoptic);
+      label_ms.push_back(label_watch.ElapsedMs());
+      total_ms.push_back(watch.ElapsedMs());
+    }
+    const double med = Percentile(render_ms, 0.5), p95 = Percentile(render_ms, 0.95);
+    std::printf("%-30s %8.1fms %8.1fms %8.1fms %8.1fms\n", info.name.c_str(), med, p95,
+                Percentile(label_ms, 0.5), Percentile(total_ms, 0.5));
+    char buf[512];
+    std::snprintf(buf, sizeof(buf),
+                  "%s{\"scenario\":\"%s\",\"render_ms_median\":%.2f,\"render_ms_p95\":%.2f,"
+                  "\"labels_ms_median\":%.2f,\"frame_ms_median\":%.2f,\"frame_ms_p95\":%.2f}",
+                  first ? "" : ",", info.name.c_str(), med, p95, Percentile(label_ms, 0.5),
+                  Percentile(total_ms, 0.5), Percentile(total_ms, 0.95));
+    json += buf;
+    first = false;
+  }
+  json += "]}";
+  std::printf("%s\n", json.c_str());
+  if (!json_path.empty()) std::ofstream(json_path) << json << "\n";
+  return 0;
+}
