@@ -1,0 +1,592 @@
+#include "slam/objects/object_tracker.h"
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+#include <unordered_map>
+#include <unordered_set>
+
+#include <glog/logging.h>
+
+namespace twist::objects {
+
+using geometry::Matrix6d;
+using geometry::SE3d;
+using geometry::Vector6d;
+
+namespace {
+
+// Buckets keypoints on a coarse grid for radius look-ups.
+class KeypointGrid {
+ public:
+  KeypointGrid(const FrameKeypoints& kps, double cell) : kps_(kps), cell_(cell) {
+    for (size_t k = 0; k < kps.uv.size(); ++k) cells_[Key(kps.uv[k])].push_back(static_cast<int>(k));
+  }
+  // Nearest keypoint within radius satisfying pred, or -1.
+  template <typename Pred>
+  int Nearest(const Eigen::Vector2d& uv, double radius, Pred&& pred) const {
+    const int cx = static_cast<int>(std::floor(uv.x() / cell_));
+    const int cy = static_cast<int>(std::floor(uv.y() / cell_));
+    const int r = static_cast<int>(std::ceil(radius / cell_));
+    int best = -1;
+    double best_d2 = radius * radius;
+    for (int dy = -r; dy <= r; ++dy) {
+      for (int dx = -r; dx <= r; ++dx) {
+        auto it = cells_.find(Pack(cx + dx, cy + dy));
+        if (it == cells_.end()) continue;
+        for (int k : it->second) {
+          const double d2 = (kps_.uv[static_cast<size_t>(k)] - uv).squaredNorm();
+          if (d2 <= best_d2 && pred(k)) {
+            best_d2 = d2;
+            best = k;
+          }
+        }
+      }
+    }
+    return best;
+  }
+
+ private:
+  static int64_t Pack(int x, int y) {
+    return (static_cast<int64_t>(x) << 32) ^ static_cast<int64_t>(static_cast<uint32_t>(y));
+  }
+  int64_t Key(const Eigen::Vector2d& uv) const {
+    return Pack(static_cast<int>(std::floor(uv.x() / cell_)), static_cast<int>(std::floor(uv.y() / cell_)));
+  }
+  const FrameKeypoints& kps_;
+  double cell_;
+  std::unordered_map<int64_t, std::vector<int>> cells_;
+};
+
+bool InsideDetection(const ObjectDetectionInput& det, const Eigen::Vector2d& uv, double margin = 0.0) {
+  if (!det.mask.empty()) {
+    const int x = static_cast<int>(std::lround(uv.x()));
+    const int y = static_cast<int>(std::lround(uv.y()));
+    if (x < 0 || y < 0 || x >= det.mask.cols || y >= det.mask.rows) return false;
+    return det.mask.at<uint8_t>(y, x) != 0;
+  }
+  return uv.x() >= det.box.x - margin && uv.y() >= det.box.y - margin &&
+         uv.x() <= det.box.x + det.box.width + margin && uv.y() <= det.box.y + det.box.height + margin;
+}
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+  return v[v.size() / 2];
+}
+
+}  // namespace
+
+struct ObjectTracker::FrameContext {
+  const ObjectFrameInput& frame;
+  SE3d world_from_camera;
+  double dt = 0.0;  // seconds since the previous frame (0 on the first)
+  KeypointGrid grid;
+  FrameContext(const ObjectFrameInput& f, double dt_s)
+      : frame(f), world_from_camera(f.camera_from_world.Inverse()), dt(dt_s), grid(f.keypoints, 8.0) {}
+};
+
+absl::Status ObjectTrackerOptions::Validate() const {
+  if (absl::Status s = estimator.Validate(); !s.ok()) return s;
+  if (absl::Status s = flow.Validate(); !s.ok()) return s;
+  if (min_points_to_track < 3 || min_points_to_create < min_points_to_track) {
+    return absl::InvalidArgumentError(
+        "object tracker needs 3 <= min_points_to_track <= min_points_to_create");
+  }
+  if (max_points_per_object < min_points_to_create) {
+    return absl::InvalidArgumentError("object tracker max_points_per_object < min_points_to_create");
+  }
+  if (!(max_depth_m > 0.0) || !(max_depth_spread_m > 0.0) || max_frames_lost < 0) {
+    return absl::InvalidArgumentError(
+        "object tracker needs max_depth_m > 0, max_depth_spread_m > 0, max_frames_lost >= 0");
+  }
+  return absl::OkStatus();
+}
+
+ObjectTracker::ObjectTracker(const geometry::StereoCamera& camera, const ObjectTrackerOptions& options)
+    : camera_(camera), options_(options) {
+  CHECK(camera_.Validate().ok()) << camera_.Validate().message();
+  CHECK(options_.Validate().ok()) << options_.Validate().message();
+}
+
+TrackedObject* ObjectTracker::mutable_object(int64_t id) {
+  auto it = objects_.find(id);
+  return it == objects_.end() ? nullptr : &it->second;
+}
+
+joints::Joint ObjectTracker::EffectiveJoint(const joints::Joint& joint) const {
+  if (options_.constrained) return joint;
+  return joints::Joint(joints::JointType::kFree, joint.world_from_joint());
+}
+
+ObjectResult ObjectTracker::ToResult(const TrackedObject& o) {
+  ObjectResult r;
+  r.id = o.id;
+  r.class_id = o.class_id;
+  r.instance_id = o.instance_id;
+  r.state = o.state;
+  r.world_from_object = o.world_from_object;
+  if (o.step_seconds > 0.0) r.twist_in_world = o.twist_step / o.step_seconds;
+  r.twist_in_joint = o.joint.WorldToJoint(r.twist_in_world);
+  const Eigen::Vector3d v = r.twist_in_world.head<3>() +
+                            r.twist_in_world.tail<3>().cross(o.world_from_object.translation());
+  r.speed_mps = v.norm();
+  r.joint = joints::JointTypeName(o.joint.type());
+  r.num_points = static_cast<int>(o.points.size());
+  return r;
+}
+
+void ObjectTracker::RecordPose(const FrameContext& ctx, TrackedObject* o) {
+  ObjectPoseSample s;
+  s.frame_index = ctx.frame.frame_index;
+  s.timestamp_ns = ctx.frame.timestamp_ns;
+  s.world_from_object = o->world_from_object;
+  s.twist_step = o->twist_step;
+  o->history.push_back(s);
+  while (static_cast<int>(o->history.size()) > options_.max_history) o->history.pop_front();
+}
+
+void ObjectTracker::AddNewPoints(const FrameContext& ctx,
+                                 const ObjectDetectionInput& det,
+                                 TrackedObject* o,
+                                 const std::vector<Eigen::Vector2d>& occupied) {
+  const FrameKeypoints& kps = ctx.frame.keypoints;
+  const SE3d camera_from_object = ctx.frame.camera_from_world * o->world_from_object;
+  const SE3d object_from_camera = camera_from_object.Inverse();
+  std::vector<double> depths;
+  for (const ObjectPoint& p : o->points) depths.push_back((camera_from_object * p.point_in_object).z());
+  const double median_depth = Median(depths);
+  std::vector<Eigen::Vector2d> taken = occupied;
+  const double spacing2 = options_.min_point_spacing_px * options_.min_point_spacing_px;
+  for (size_t k = 0; k < kps.uv.size(); ++k) {
+    if (static_cast<int>(o->points.size()) >= options_.max_points_per_object) break;
+    if (kps.u_right[k] < 0.0 || !InsideDetection(det, kps.uv[k])) continue;
+    bool close = false;
+    for (const auto& t : taken) {
+      if ((t - kps.uv[k]).squaredNorm() < spacing2) {
+        close = true;
+        break;
+      }
+    }
+    if (close) continue;
+    const auto p_c = camera_.TriangulateStereo(kps.uv[k].x(), kps.uv[k].y(), kps.u_right[k], options_.max_depth_m);
+    if (!p_c) continue;
+    if (!depths.empty() && std::abs(p_c->z() - median_depth) > options_.max_depth_spread_m) continue;
+    ObjectPoint p;
+    p.id = o->next_point_id++;
+    p.point_in_object = object_from_camera * *p_c;
+    if (!kps.descriptors.empty()) p.descriptor = kps.descriptors.row(static_cast<int>(k)).clone();
+    p.patch = ExtractPatch(ctx.frame.left, kps.uv[k], options_.search.patch_half_size);
+    p.last_uv = kps.uv[k];
+    p.seen_last_frame = true;
+    p.num_observations = 1;
+    o->points.push_back(std::move(p));
+    taken.push_back(kps.uv[k]);
+  }
+}
+
+bool ObjectTracker::Create(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* o) {
+  const FrameKeypoints& kps = ctx.frame.keypoints;
+  std::vector<size_t> idx;
+  std::vector<Eigen::Vector3d> p_cam;
+  for (size_t k = 0; k < kps.uv.size(); ++k) {
+    if (kps.u_right[k] < 0.0 || !InsideDetection(det, kps.uv[k])) continue;
+    const auto p_c = camera_.TriangulateStereo(kps.uv[k].x(), kps.uv[k].y(), kps.u_right[k], options_.max_depth_m);
+    if (!p_c) continue;
+    idx.push_back(k);
+    p_cam.push_back(*p_c);
+  }
+  if (static_cast<int>(idx.size()) < options_.min_points_to_create) return false;
+  // Mask edges leak background: keep the points near the median depth.
+  std::vector<double> depths;
+  for (const auto& p : p_cam) depths.push_back(p.z());
+  const double median_depth = Median(depths);
+  std::vector<Eigen::Vector3d> p_world;
+  std::vector<size_t> kept;
+  for (size_t j = 0; j < idx.size(); ++j) {
+    if (std::abs(p_cam[j].z() - median_depth) > options_.max_depth_spread_m) continue;
+    p_world.push_back(ctx.world_from_camera * p_cam[j]);
+    kept.push_back(j);
+  }
+  if (static_cast<int>(kept.size()) < options_.min_points_to_create) return false;
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const auto& p : p_world) centroid += p;
+  centroid /= static_cast<double>(p_world.size());
+  o->joint = EffectiveJoint(det.joint);
+  const SE3d& world_from_joint = o->joint.world_from_joint();
+  const Eigen::Vector3d z = world_from_joint.rotation().col(2);
+  const Eigen::Vector3d origin = centroid - (centroid - world_from_joint.translation()).dot(z) * z;
+  o->world_from_object = SE3d(world_from_joint.so3(), origin);
+  const SE3d object_from_world = o->world_from_object.Inverse();
+  o->points.clear();
+  for (size_t m = 0; m < kept.size() && static_cast<int>(o->points.size()) < options_.max_points_per_object; ++m) {
+    const size_t k = idx[kept[m]];
+    ObjectPoint p;
+    p.id = o->next_point_id++;
+    p.point_in_object = object_from_world * p_world[m];
+    if (!kps.descriptors.empty()) p.descriptor = kps.descriptors.row(static_cast<int>(k)).clone();
+    p.patch = ExtractPatch(ctx.frame.left, kps.uv[k], options_.search.patch_half_size);
+    p.last_uv = kps.uv[k];
+    p.seen_last_frame = true;
+    p.num_observations = 1;
+    o->points.push_back(std::move(p));
+  }
+  o->cluster_id = det.cluster_id;
+  o->class_id = det.class_id;
+  o->instance_id = det.instance_id;
+  o->state = ObjectState::kNew;
+  o->twist_step.setZero();
+  o->step_seconds = 0.0;
+  o->frames_lost = 0;
+  o->last_seen_frame = ctx.frame.frame_index;
+  o->last_box = det.box;
+  return true;
+}
+
+bool ObjectTracker::Track(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* o) {
+  const ObjectFrameInput& f = ctx.frame;
+  // Constant-velocity prediction, scaled to this frame's duration.
+  Vector6d initial = o->twist_step;
+  if (o->step_seconds > 0.0 && ctx.dt > 0.0) initial *= ctx.dt / o->step_seconds;
+  const SE3d predicted = SE3d::Exp(o->joint.WorldProjector() * initial) * o->world_from_object;
+  const SE3d camera_from_predicted = f.camera_from_world * predicted;
+
+  std::vector<size_t> flow_idx;
+  std::vector<Eigen::Vector2d> prev_uv, pred_uv;
+  for (size_t k = 0; k < o->points.size(); ++k) {
+    if (!o->points[k].seen_last_frame) continue;
+    flow_idx.push_back(k);
+    prev_uv.push_back(o->points[k].last_uv);
+    Eigen::Vector2d uv;
+    if (!camera_.ProjectChecked(camera_from_predicted * o->points[k].point_in_object, &uv, nullptr, 0.1) ||
+        !camera_.InImage(uv)) {
+      uv = o->points[k].last_uv;
+    }
+    pred_uv.push_back(uv);
+  }
+  absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> flowed =
+      !f.flow.empty() ? TrackDenseFlow(f.flow, prev_uv, options_.flow.border_px)
+                      : TrackSparseFlow(prev_left_, f.left, prev_uv, options_.flow, &pred_uv);
+  if (!flowed.ok()) return false;
+
+  std::vector<TwistObservation> obs;
+  std::vector<size_t> obs_point;
+  auto add_obs = [&](size_t point, const Eigen::Vector2d& uv, double u_right) {
+    TwistObservation t;
+    t.point_in_object = o->points[point].point_in_object;
+    t.uv = uv;
+    t.u_right = u_right;
+    obs.push_back(t);
+    obs_point.push_back(point);
+  };
+  // Right-image u of the stereo keypoint under a flow position (descriptor
+  // checked when both sides have one), shifted by the sub-pixel offset.
+  auto stereo_at = [&](const Eigen::Vector2d& uv, size_t point) {
+    const cv::Mat& desc = o->points[point].descriptor;
+    const int kp = ctx.grid.Nearest(uv, options_.stereo_lookup_px, [&](int i) {
+      if (f.keypoints.u_right[static_cast<size_t>(i)] < 0.0) return false;
+      if (desc.empty() || f.keypoints.descriptors.empty()) return true;
+      return HammingDistance(desc, f.keypoints.descriptors.row(i)) <= options_.search.max_hamming;
+    });
+    if (kp < 0) return -1.0;
+    return f.keypoints.u_right[static_cast<size_t>(kp)] + (uv.x() - f.keypoints.uv[static_cast<size_t>(kp)].x());
+  };
+  for (size_t j = 0; j < flow_idx.size(); ++j) {
+    const auto& q = (*flowed)[j];
+    if (!q || !InsideDetection(det, *q, 2.0)) continue;
+    add_obs(flow_idx[j], *q, stereo_at(*q, flow_idx[j]));
+  }
+  const Matrix6d projector = o->joint.WorldProjector();
+  std::optional<TwistEstimate> est;
+  if (static_cast<int>(obs.size()) >= options_.min_points_to_track) {
+    absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_, f.camera_from_world, o->world_from_object,
+                                                          projector, obs, initial, options_.estimator);
+    if (e.ok() && e->success) est = *e;
+  }
+
+  if (options_.refine_by_projection) {
+    // Project every point not yet matched with the current estimate (or the
+    // prediction) and look for it by descriptor, then by patch.
+    const SE3d current = est ? est->world_from_object : predicted;
+    const SE3d camera_from_object = f.camera_from_world * current;
+    std::vector<bool> skip(o->points.size(), false);
+    for (size_t j = 0; j < obs.size(); ++j) {
+      if (!est || est->inliers[j]) skip[obs_point[j]] = true;
+    }
+    if (est) {  // keep only the inliers of the first estimate
+      std::vector<TwistObservation> kept;
+      std::vector<size_t> kept_point;
+      for (size_t j = 0; j < obs.size(); ++j) {
+        if (!est->inliers[j]) continue;
+        kept.push_back(obs[j]);
+        kept_point.push_back(obs_point[j]);
+      }
+      obs = std::move(kept);
+      obs_point = std::move(kept_point);
+    } else {
+      obs.clear();
+      obs_point.clear();
+    }
+    std::vector<Eigen::Vector3d> pts;
+    std::vector<cv::Mat> descs;
+    for (const ObjectPoint& p : o->points) {
+      pts.push_back(p.point_in_object);
+      descs.push_back(p.descriptor);
+    }
+    ProjectionSearchOptions search = options_.search;
+    if (!est) search.radius_px *= 2.0;  // only the prediction to go by
+    const std::vector<int> match =
+        SearchByProjection(camera_, camera_from_object, pts, descs, skip, f.keypoints, search);
+    const size_t before = obs.size();
+    for (size_t k = 0; k < o->points.size(); ++k) {
+      if (skip[k]) continue;
+      if (match[k] >= 0) {
+        const size_t kp = static_cast<size_t>(match[k]);
+        if (!InsideDetection(det, f.keypoints.uv[kp], 2.0)) continue;
+        add_obs(k, f.keypoints.uv[kp], f.keypoints.u_right[kp]);
+        continue;
+      }
+      if (o->points[k].patch.empty()) continue;
+      Eigen::Vector2d uv;
+      if (!camera_.ProjectChecked(camera_from_object * pts[k], &uv, nullptr, 0.1) || !camera_.InImage(uv, 8)) continue;
+      const auto found = PatchSearch(f.left, o->points[k].patch, uv, options_.search);
+      if (found && InsideDetection(det, *found, 2.0)) add_obs(k, *found, stereo_at(*found, k));
+    }
+    if (obs.size() > before || !est) {
+      if (static_cast<int>(obs.size()) < options_.min_points_to_track) return est.has_value();
+      const Vector6d seed = est ? est->twist : initial;
+      absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_, f.camera_from_world, o->world_from_object,
+                                                            projector, obs, seed, options_.estimator);
+      if (e.ok() && e->success) {
+        est = *e;
+      } else if (!est) {
+        return false;
+      } else {
+        // Keep the first estimate; its observations are the inliers kept above.
+        est->inliers.assign(obs.size(), false);
+        for (size_t j = 0; j < before; ++j) est->inliers[j] = true;
+      }
+    }
+  }
+  if (!est) return false;
+
+  o->world_from_object = est->world_from_object;
+  o->twist_step = est->twist;
+  o->step_seconds = ctx.dt;
+  o->last_num_inliers = est->num_inliers;
+  o->last_sigma_px = est->sigma_px;
+  for (ObjectPoint& p : o->points) p.seen_last_frame = false;
+  std::vector<Eigen::Vector2d> occupied;
+  for (size_t j = 0; j < obs.size(); ++j) {
+    if (!est->inliers[j]) continue;
+    ObjectPoint& p = o->points[obs_point[j]];
+    p.last_uv = obs[j].uv;
+    p.seen_last_frame = true;
+    ++p.num_observations;
+    occupied.push_back(obs[j].uv);
+  }
+  AddNewPoints(ctx, det, o, occupied);
+  return true;
+}
+
+bool ObjectTracker::Reacquire(const FrameContext& ctx,
+                              const ObjectDetectionInput& det,
+                              TrackedObject* o,
+                              double* score) {
+  const ObjectFrameInput& f = ctx.frame;
+  // Steps elapsed since the object was last seen, in units of its last step.
+  double steps = static_cast<double>(std::max<int64_t>(1, f.frame_index - o->last_seen_frame));
+  if (o->step_seconds > 0.0 && !o->history.empty() && f.timestamp_ns > o->history.back().timestamp_ns) {
+    steps = (f.timestamp_ns - o->history.back().timestamp_ns) * 1e-9 / o->step_seconds;
+  }
+  const Matrix6d projector = EffectiveJoint(det.joint).WorldProjector();
+  const Vector6d initial = projector * (steps * o->twist_step);
+  const SE3d predicted = SE3d::Exp(initial) * o->world_from_object;
+  const SE3d camera_from_object = f.camera_from_world * predicted;
+  // Predicted box from the projected points.
+  double x0 = 1e18, y0 = 1e18, x1 = -1e18, y1 = -1e18;
+  int in_front = 0;
+  std::vector<Eigen::Vector3d> pts;
+  std::vector<cv::Mat> descs;
+  for (const ObjectPoint& p : o->points) {
+    pts.push_back(p.point_in_object);
+    descs.push_back(p.descriptor);
+    Eigen::Vector2d uv;
+    if (!camera_.ProjectChecked(camera_from_object * p.point_in_object, &uv, nullptr, 0.1)) continue;
+    ++in_front;
+    x0 = std::min(x0, uv.x());
+    y0 = std::min(y0, uv.y());
+    x1 = std::max(x1, uv.x());
+    y1 = std::max(y1, uv.y());
+  }
+  if (in_front == 0) return false;
+  const cv::Rect2d box(x0, y0, x1 - x0, y1 - y0);
+  const double inter = (box & det.box).area();
+  const double iou = inter > 0 ? inter / (box.area() + det.box.area() - inter) : 0.0;
+  ProjectionSearchOptions search = options_.search;
+  search.radius_px *= options_.reid_radius_scale;
+  const std::vector<int> match = SearchByProjection(camera_, camera_from_object, pts, descs,
+                                                    std::vector<bool>(pts.size(), false), f.keypoints, search);
+  std::vector<TwistObservation> obs;
+  std::vector<size_t> obs_point;
+  int with_descriptor = 0;
+  for (size_t k = 0; k < pts.size(); ++k) {
+    with_descriptor += descs[k].empty() ? 0 : 1;
+    if (match[k] < 0) continue;
+    const size_t kp = static_cast<size_t>(match[k]);
+    if (!InsideDetection(det, f.keypoints.uv[kp], 2.0)) continue;
+    TwistObservation t;
+    t.point_in_object = pts[k];
+    t.uv = f.keypoints.uv[kp];
+    t.u_right = f.keypoints.u_right[kp];
+    obs.push_back(t);
+    obs_point.push_back(k);
+  }
+  const double appearance = with_descriptor > 0 ? static_cast<double>(obs.size()) / with_descriptor : 0.0;
+  *score = 0.5 * iou + 0.5 * appearance;
+  if (*score < options_.reid_min_score || static_cast<int>(obs.size()) < options_.min_points_to_track) {
+    return false;
+  }
+  absl::StatusOr<TwistEstimate> est = EstimateObjectTwist(camera_, f.camera_from_world, o->world_from_object,
+                                                          projector, obs, initial, options_.estimator);
+  if (!est.ok() || !est->success) return false;
+  o->joint = EffectiveJoint(det.joint);
+  o->world_from_object = est->world_from_object;
+  o->twist_step = est->twist / std::max(1.0, steps);
+  o->step_seconds = ctx.dt;
+  o->last_num_inliers = est->num_inliers;
+  o->last_sigma_px = est->sigma_px;
+  for (ObjectPoint& p : o->points) p.seen_last_frame = false;
+  std::vector<Eigen::Vector2d> occupied;
+  for (size_t j = 0; j < obs.size(); ++j) {
+    if (!est->inliers[j]) continue;
+    ObjectPoint& p = o->points[obs_point[j]];
+    p.last_uv = obs[j].uv;
+    p.seen_last_frame = true;
+    ++p.num_observations;
+    occupied.push_back(obs[j].uv);
+  }
+  AddNewPoints(ctx, det, o, occupied);
+  return true;
+}
+
+absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFrameInput& frame) {
+  if (frame.left.empty() || frame.left.type() != CV_8UC1) {
+    return absl::InvalidArgumentError("object tracker needs a CV_8UC1 left image");
+  }
+  if (frame.left.cols != camera_.width || frame.left.rows != camera_.height) {
+    return absl::InvalidArgumentError("left image is " + std::to_string(frame.left.cols) + "x" +
+                                      std::to_string(frame.left.rows) + ", camera is " +
+                                      std::to_string(camera_.width) + "x" + std::to_string(camera_.height));
+  }
+  if (!frame.flow.empty() && (frame.flow.type() != CV_32FC2 || frame.flow.size() != frame.left.size())) {
+    return absl::InvalidArgumentError("flow must be CV_32FC2 with the size of the left image");
+  }
+  const FrameKeypoints& kps = frame.keypoints;
+  if (kps.u_right.size() != kps.uv.size() ||
+      (!kps.descriptors.empty() && (kps.descriptors.rows != static_cast<int>(kps.uv.size()) ||
+                                    kps.descriptors.type() != CV_8UC1))) {
+    return absl::InvalidArgumentError(
+        "keypoints need one u_right per keypoint and one CV_8UC1 descriptor row per keypoint");
+  }
+  if (has_prev_ && frame.timestamp_ns <= prev_timestamp_ns_) {
+    return absl::InvalidArgumentError("object tracker timestamps must increase");
+  }
+  const double dt = has_prev_ ? (frame.timestamp_ns - prev_timestamp_ns_) * 1e-9 : 0.0;
+  FrameContext ctx(frame, dt);
+  stats_ = ObjectTrackerStats{};
+
+  std::unordered_set<int64_t> handled;
+  std::vector<const ObjectDetectionInput*> unmatched;
+  for (const ObjectDetectionInput& det : frame.detections) {
+    TrackedObject* o = nullptr;
+    for (auto& [id, obj] : objects_) {
+      if (obj.cluster_id == det.cluster_id && handled.count(id) == 0) o = &obj;
+    }
+    if (o == nullptr) {
+      unmatched.push_back(&det);
+      continue;
+    }
+    handled.insert(o->id);
+    bool ok;
+    if (o->frames_lost == 0 && has_prev_) {
+      o->joint = EffectiveJoint(det.joint);
+      ok = Track(ctx, det, o);
+    } else {
+      double score = 0.0;
+      ok = Reacquire(ctx, det, o, &score);
+    }
+    if (ok) {
+      o->class_id = det.class_id;
+      o->instance_id = det.instance_id;
+      o->state = ObjectState::kTracked;
+      o->frames_lost = 0;
+      o->last_seen_frame = frame.frame_index;
+      o->last_box = det.box;
+      ++stats_.tracked;
+      RecordPose(ctx, o);
+    } else {
+      handled.erase(o->id);  // aged below like an undetected object
+    }
+  }
+  for (const ObjectDetectionInput* det : unmatched) {
+    // Re-identification of a recently lost object of the same class.
+    TrackedObject* best = nullptr;
+    for (auto& [id, obj] : objects_) {
+      if (handled.count(id) > 0 || obj.class_id != det->class_id || obj.state != ObjectState::kLost) continue;
+      double score = 0.0;
+      if (Reacquire(ctx, *det, &obj, &score)) {
+        best = &obj;
+        break;
+      }
+    }
+    if (best != nullptr) {
+      best->cluster_id = det->cluster_id;
+      best->instance_id = det->instance_id;
+      best->state = ObjectState::kTracked;
+      best->frames_lost = 0;
+      best->last_seen_frame = frame.frame_index;
+      best->last_box = det->box;
+      handled.insert(best->id);
+      ++stats_.reidentified;
+      RecordPose(ctx, best);
+      continue;
+    }
+    TrackedObject o;
+    o.id = next_object_id_;
+    if (!Create(ctx, *det, &o)) continue;
+    ++next_object_id_;
+    handled.insert(o.id);
+    ++stats_.created;
+    RecordPose(ctx, &o);
+    objects_.emplace(o.id, std::move(o));
+  }
+  for (auto it = objects_.begin(); it != objects_.end();) {
+    TrackedObject& o = it->second;
+    if (handled.count(o.id) > 0) {
+      ++it;
+      continue;
+    }
+    ++o.frames_lost;
+    for (ObjectPoint& p : o.points) p.seen_last_frame = false;
+    if (o.state != ObjectState::kLost) {
+      o.state = ObjectState::kLost;
+      ++stats_.lost;
+    }
+    if (o.frames_lost > options_.max_frames_lost) {
+      ++stats_.removed;
+      it = objects_.erase(it);
+      continue;
+    }
+    ++it;
+  }
+
+  std::vector<ObjectResult> results;
+  for (const auto& [id, o] : objects_) results.push_back(ToResult(o));
+  prev_left_ = frame.left.clone();
+  prev_timestamp_ns_ = frame.timestamp_ns;
+  has_prev_ = true;
+  return results;
+}
+
+}  // namespace twist::objects

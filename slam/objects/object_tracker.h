@@ -1,0 +1,175 @@
+// Per-session tracker of dynamic objects (paper §IV-D/E).
+//
+// Every frame, for each object:
+//  1. its points seen in the previous frame are followed by optical flow
+//     (the client's dense field when the frame carries one, else pyramidal LK
+//     seeded with the constant-velocity prediction);
+//  2. the constrained twist is estimated (twist_estimator.h) from those 2D
+//     (or stereo, when a stereo keypoint sits under the flow position)
+//     observations;
+//  3. the object's other points are projected with the estimated twist and
+//     matched by descriptor (frame keypoints) or patch NCC, and the twist is
+//     re-estimated with all matches;
+//  4. world_from_object_i = Exp(Π ξ) · world_from_object_{i−1}; new stereo
+//     keypoints inside the object's mask become new object points.
+// Detections without an object first try to re-identify a recently lost
+// object of the same class (predicted pose + appearance), otherwise a new
+// object is created by stereo triangulation, with its frame at the points'
+// centroid projected onto the joint plane and its axes aligned with the joint
+// frame. Objects are new -> tracked -> lost -> removed.
+//
+// Plain-data in, plain-data out: the engine passes the camera pose of the
+// frame (from static tracking), the gray left image, the frame's stereo
+// keypoints, optional dense flow, and one entry per dynamic cluster detected
+// in the frame with its resolved joint.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <vector>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "slam/common/frame_result.h"
+#include "slam/geometry/se3.h"
+#include "slam/geometry/stereo_camera.h"
+#include "slam/joints/joint.h"
+#include "slam/objects/flow_association.h"
+#include "slam/objects/projection_search.h"
+#include "slam/objects/twist_estimator.h"
+
+namespace twist::objects {
+
+struct ObjectPoint {
+  int64_t id = 0;  // unique within its object
+  Eigen::Vector3d point_in_object = Eigen::Vector3d::Zero();
+  cv::Mat descriptor;  // CV_8U row (may be empty)
+  cv::Mat patch;       // CV_32F reference patch (may be empty)
+  Eigen::Vector2d last_uv = Eigen::Vector2d::Zero();  // in the last frame it was seen
+  bool seen_last_frame = false;
+  int num_observations = 0;
+};
+
+struct ObjectPoseSample {
+  int64_t frame_index = 0;
+  int64_t timestamp_ns = 0;
+  geometry::SE3d world_from_object;
+  geometry::Vector6d twist_step = geometry::Vector6d::Zero();  // into this frame, world, per frame
+};
+
+struct TrackedObject {
+  int64_t id = 0;          // stable object id (own counter per tracker)
+  int64_t cluster_id = 0;  // cluster currently associated (changes on re-identification)
+  int class_id = 0;
+  int instance_id = 0;
+  ObjectState state = ObjectState::kNew;
+  joints::Joint joint;
+  geometry::SE3d world_from_object;
+  // Constrained twist of the last step (world frame, one frame step) and its
+  // duration in seconds (0 before the first step).
+  geometry::Vector6d twist_step = geometry::Vector6d::Zero();
+  double step_seconds = 0.0;
+  std::vector<ObjectPoint> points;
+  int frames_lost = 0;
+  int64_t last_seen_frame = 0;
+  cv::Rect2d last_box;
+  std::deque<ObjectPoseSample> history;  // most recent last, bounded
+  int64_t next_point_id = 1;
+  // Diagnostics of the last estimate.
+  int last_num_inliers = 0;
+  double last_sigma_px = 0.0;
+};
+
+// One dynamic cluster detected in the current frame.
+struct ObjectDetectionInput {
+  int64_t cluster_id = 0;
+  int class_id = 0;
+  int instance_id = 0;
+  cv::Rect2d box;
+  cv::Mat mask;  // optional CV_8UC1 full-image mask (non-zero inside)
+  // The cluster's joint resolved from its parent (joint_frames.h); a free
+  // joint when unknown. Ignored (free) when the tracker runs unconstrained.
+  joints::Joint joint;
+};
+
+struct ObjectFrameInput {
+  int64_t frame_index = 0;
+  int64_t timestamp_ns = 0;
+  geometry::SE3d camera_from_world;
+  cv::Mat left;  // CV_8UC1
+  cv::Mat flow;  // optional CV_32FC2 previous-left -> this-left
+  FrameKeypoints keypoints;  // stereo keypoints of the left image (u_right < 0: mono)
+  std::vector<ObjectDetectionInput> detections;
+};
+
+struct ObjectTrackerOptions {
+  TwistEstimatorOptions estimator;
+  SparseFlowOptions flow;
+  ProjectionSearchOptions search;
+  bool constrained = true;          // false: every object is a free 6-DoF body
+  int min_points_to_create = 8;
+  int min_points_to_track = 5;
+  int max_points_per_object = 300;
+  double max_depth_m = 60.0;        // triangulated points further away are dropped
+  double max_depth_spread_m = 4.0;  // around the object's median depth
+  double min_point_spacing_px = 3.0;
+  double stereo_lookup_px = 1.5;    // flow position -> stereo keypoint
+  int max_frames_lost = 10;         // re-identification window, then removed
+  double reid_min_score = 0.3;
+  double reid_radius_scale = 4.0;   // search radius multiplier after a loss
+  bool refine_by_projection = true;
+  int max_history = 300;
+
+  absl::Status Validate() const;
+};
+
+struct ObjectTrackerStats {
+  int tracked = 0;
+  int created = 0;
+  int reidentified = 0;
+  int lost = 0;
+  int removed = 0;
+};
+
+class ObjectTracker {
+ public:
+  ObjectTracker(const geometry::StereoCamera& camera, const ObjectTrackerOptions& options);
+
+  // Processes one frame. InvalidArgument for malformed input (image type or
+  // size, flow type); object tracking failures are states in the results.
+  absl::StatusOr<std::vector<ObjectResult>> Process(const ObjectFrameInput& frame);
+
+  const std::map<int64_t, TrackedObject>& objects() const { return objects_; }
+  const ObjectTrackerStats& last_stats() const { return stats_; }
+  // Lets the dynamic bundle adjustment write back refined poses and points.
+  TrackedObject* mutable_object(int64_t id);
+
+  // Converts a tracked object to the engine's per-frame result.
+  static ObjectResult ToResult(const TrackedObject& object);
+
+ private:
+  struct FrameContext;
+  bool Track(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* object);
+  bool Reacquire(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* object,
+                 double* score);
+  bool Create(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* object);
+  void AddNewPoints(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* object,
+                    const std::vector<Eigen::Vector2d>& occupied);
+  void RecordPose(const FrameContext& ctx, TrackedObject* object);
+  joints::Joint EffectiveJoint(const joints::Joint& joint) const;
+
+  geometry::StereoCamera camera_;
+  ObjectTrackerOptions options_;
+  std::map<int64_t, TrackedObject> objects_;
+  int64_t next_object_id_ = 1;
+  cv::Mat prev_left_;
+  int64_t prev_timestamp_ns_ = 0;
+  bool has_prev_ = false;
+  ObjectTrackerStats stats_;
+};
+
+}  // namespace twist::objects
