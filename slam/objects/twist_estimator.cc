@@ -9,6 +9,7 @@
 #include <ceres/ceres.h>
 #include <glog/logging.h>
 
+#include "slam/objects/subspace_manifold.h"
 #include "slam/optimization/cost_functions/twist_tracking_cost.h"
 
 namespace twist::objects {
@@ -18,40 +19,6 @@ using geometry::Matrix6d;
 using geometry::SE3d;
 using geometry::Vector6d;
 using Basis = Eigen::Matrix<double, 6, Eigen::Dynamic>;
-
-// ξ = x + B δ: moves a 6-vector inside the column space of B (orthonormal).
-class LinearSubspaceManifold final : public ceres::Manifold {
- public:
-  explicit LinearSubspaceManifold(const Basis& basis) : basis_(basis) {}
-  int AmbientSize() const override { return 6; }
-  int TangentSize() const override { return static_cast<int>(basis_.cols()); }
-  bool Plus(const double* x, const double* delta, double* x_plus_delta) const override {
-    Eigen::Map<Vector6d> out(x_plus_delta);
-    out = Eigen::Map<const Vector6d>(x) +
-          basis_ * Eigen::Map<const Eigen::VectorXd>(delta, basis_.cols());
-    return true;
-  }
-  bool PlusJacobian(const double* /*x*/, double* jacobian) const override {
-    Eigen::Map<Eigen::Matrix<double, 6, Eigen::Dynamic, Eigen::RowMajor>> j(jacobian, 6,
-                                                                           basis_.cols());
-    j = basis_;
-    return true;
-  }
-  bool Minus(const double* y, const double* x, double* y_minus_x) const override {
-    Eigen::Map<Eigen::VectorXd> out(y_minus_x, basis_.cols());
-    out = basis_.transpose() * (Eigen::Map<const Vector6d>(y) - Eigen::Map<const Vector6d>(x));
-    return true;
-  }
-  bool MinusJacobian(const double* /*x*/, double* jacobian) const override {
-    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 6, Eigen::RowMajor>> j(jacobian,
-                                                                           basis_.cols(), 6);
-    j = basis_.transpose();
-    return true;
-  }
-
- private:
-  Basis basis_;
-};
 
 template <int N>
 ceres::CostFunction* MakeCost(const geometry::StereoCamera& camera,

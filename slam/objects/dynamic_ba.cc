@@ -1,0 +1,360 @@
+#include "slam/objects/dynamic_ba.h"
+
+#include <algorithm>
+#include <array>
+#include <optional>
+#include <cmath>
+#include <memory>
+#include <unordered_map>
+
+#include <ceres/ceres.h>
+#include <glog/logging.h>
+
+#include "slam/objects/subspace_manifold.h"
+#include "slam/objects/twist_estimator.h"
+#include "slam/optimization/cost_functions/constant_velocity_cost.h"
+#include "slam/optimization/cost_functions/dynamic_reprojection_cost.h"
+#include "slam/optimization/cost_functions/reprojection_cost.h"
+#include "slam/optimization/manifolds/se3_manifold.h"
+
+namespace twist::objects {
+
+using geometry::Matrix6d;
+using geometry::SE3d;
+using geometry::Vector6d;
+
+namespace {
+
+std::string Where(const char* what, size_t i) { return std::string(what) + " " + std::to_string(i); }
+
+absl::Status CheckObservation(const BaObservation& o, int num_keyframes, int num_points, const std::string& where) {
+  if (o.keyframe < 0 || o.keyframe >= num_keyframes) {
+    return absl::InvalidArgumentError(where + ": keyframe index " + std::to_string(o.keyframe) + " out of range");
+  }
+  if (o.point < 0 || o.point >= num_points) {
+    return absl::InvalidArgumentError(where + ": point index " + std::to_string(o.point) + " out of range");
+  }
+  if (!(o.sigma_px > 0.0) || !o.uv.allFinite()) {
+    return absl::InvalidArgumentError(where + ": needs a finite uv and sigma_px > 0");
+  }
+  return absl::OkStatus();
+}
+
+template <int N>
+Eigen::Matrix<double, N, 1> Measurement(const BaObservation& o) {
+  if constexpr (N == 2) {
+    return o.uv;
+  } else {
+    return Eigen::Vector3d(o.uv.x(), o.uv.y(), o.u_right);
+  }
+}
+
+// Residual norm of a dynamic observation at the current state (pixels).
+std::optional<double> DynamicResidual(const geometry::StereoCamera& cam,
+                                      const SE3d& camera_from_world,
+                                      const SE3d& world_from_object,
+                                      const Eigen::Vector3d& p_o,
+                                      const BaObservation& o,
+                                      std::vector<double>* comps) {
+  Eigen::Vector3d uvr;
+  if (!cam.ProjectStereoChecked(camera_from_world * (world_from_object * p_o), &uvr, nullptr, 1e-3)) {
+    return std::nullopt;
+  }
+  comps->push_back(o.uv.x() - uvr.x());
+  comps->push_back(o.uv.y() - uvr.y());
+  if (o.u_right >= 0.0) comps->push_back(o.u_right - uvr.z());
+  return 0.0;
+}
+
+}  // namespace
+
+absl::Status DynamicBaProblem::Validate() const {
+  if (absl::Status s = camera.Validate(); !s.ok()) return s;
+  const int nk = static_cast<int>(keyframes.size());
+  for (size_t i = 0; i < observations.size(); ++i) {
+    if (absl::Status s = CheckObservation(observations[i], nk, static_cast<int>(points.size()),
+                                          Where("static observation", i));
+        !s.ok()) {
+      return s;
+    }
+  }
+  for (size_t k = 0; k < objects.size(); ++k) {
+    const BaObject& obj = objects[k];
+    std::vector<bool> has_frame(keyframes.size(), false);
+    for (const BaObjectFrame& f : obj.frames) {
+      if (f.keyframe < 0 || f.keyframe >= nk) {
+        return absl::InvalidArgumentError(Where("object", k) + ": frame keyframe index out of range");
+      }
+      if (has_frame[static_cast<size_t>(f.keyframe)]) {
+        return absl::InvalidArgumentError(Where("object", k) + ": two poses in one keyframe");
+      }
+      has_frame[static_cast<size_t>(f.keyframe)] = true;
+    }
+    for (size_t i = 0; i < obj.observations.size(); ++i) {
+      const BaObservation& o = obj.observations[i];
+      const std::string where = Where("object", k) + " " + Where("observation", i);
+      if (absl::Status s = CheckObservation(o, nk, static_cast<int>(obj.points_in_object.size()), where); !s.ok()) {
+        return s;
+      }
+      if (!has_frame[static_cast<size_t>(o.keyframe)]) {
+        return absl::InvalidArgumentError(where + ": the object has no pose in that keyframe");
+      }
+    }
+  }
+  return absl::OkStatus();
+}
+
+absl::Status DynamicBaOptions::Validate() const {
+  if (max_iterations < 1) return absl::InvalidArgumentError("dynamic BA max_iterations < 1");
+  if (!(huber_delta > 0.0) || !(const_velocity_huber > 0.0) || !(min_sigma_px > 0.0)) {
+    return absl::InvalidArgumentError("dynamic BA Huber thresholds and min_sigma_px must be > 0");
+  }
+  if (!(const_velocity_sqrt_weight.array() >= 0.0).all()) {
+    return absl::InvalidArgumentError("dynamic BA constant-velocity weights must be >= 0");
+  }
+  return absl::OkStatus();
+}
+
+bool InTemporalWindow(int64_t timestamp_ns, int64_t newest_timestamp_ns, double temporal_window_s) {
+  return static_cast<double>(newest_timestamp_ns - timestamp_ns) <= temporal_window_s * 1e9;
+}
+
+std::vector<Vector6d> ObjectStepTwists(const BaObject& object) {
+  std::vector<Vector6d> out;
+  for (size_t k = 1; k < object.frames.size(); ++k) {
+    out.push_back((object.frames[k].world_from_object * object.frames[k - 1].world_from_object.Inverse()).Log());
+  }
+  return out;
+}
+
+absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem, const DynamicBaOptions& options) {
+  CHECK(problem != nullptr);
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  if (absl::Status s = problem->Validate(); !s.ok()) return s;
+  const geometry::StereoCamera& cam = problem->camera;
+  DynamicBaSummary summary;
+
+  ceres::Problem::Options problem_options;
+  problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem ceres_problem(problem_options);
+  optimization::SE3Manifold se3_manifold;
+  std::vector<std::unique_ptr<ceres::Manifold>> manifolds;  // outlive the solve
+
+  // Parameter storage.
+  const size_t nk = problem->keyframes.size();
+  std::vector<std::array<double, 7>> kf_params(nk);
+  for (size_t i = 0; i < nk; ++i) problem->keyframes[i].camera_from_world.ToParams(kf_params[i].data());
+  std::vector<std::array<double, 3>> point_params(problem->points.size());
+  for (size_t j = 0; j < problem->points.size(); ++j) {
+    Eigen::Map<Eigen::Vector3d>(point_params[j].data()) = problem->points[j].point_in_world;
+  }
+  struct ObjectParams {
+    std::vector<std::array<double, 6>> twist;
+    std::vector<std::array<double, 7>> pose;
+    std::vector<std::array<double, 3>> points;
+    std::vector<int> frame_of_keyframe;
+    Matrix6d projector;
+  };
+  std::vector<ObjectParams> obj_params(problem->objects.size());
+
+  bool any_fixed = false;
+  for (const BaKeyframe& kf : problem->keyframes) any_fixed |= kf.fixed;
+  size_t oldest = 0;
+  for (size_t i = 1; i < nk; ++i) {
+    if (problem->keyframes[i].timestamp_ns < problem->keyframes[oldest].timestamp_ns) oldest = i;
+  }
+  auto add_keyframe = [&](int i) {
+    double* x = kf_params[static_cast<size_t>(i)].data();
+    if (ceres_problem.HasParameterBlock(x)) return x;
+    ceres_problem.AddParameterBlock(x, 7, &se3_manifold);
+    const bool fix = problem->keyframes[static_cast<size_t>(i)].fixed ||
+                     (!any_fixed && options.fix_oldest_keyframe_if_none_fixed && static_cast<size_t>(i) == oldest);
+    if (fix) ceres_problem.SetParameterBlockConstant(x);
+    return x;
+  };
+
+  // Static terms.
+  for (const BaObservation& o : problem->observations) {
+    double* x = add_keyframe(o.keyframe);
+    double* p = point_params[static_cast<size_t>(o.point)].data();
+    const double s = 1.0 / o.sigma_px;
+    ceres::CostFunction* cost;
+    if (o.u_right >= 0.0) {
+      cost = options.use_autodiff ? optimization::ReprojectionFunctor<3>::Create(cam, Measurement<3>(o), s)
+                                  : static_cast<ceres::CostFunction*>(
+                                        new optimization::ReprojectionCost<3>(cam, Measurement<3>(o), s));
+    } else {
+      cost = options.use_autodiff ? optimization::ReprojectionFunctor<2>::Create(cam, Measurement<2>(o), s)
+                                  : static_cast<ceres::CostFunction*>(
+                                        new optimization::ReprojectionCost<2>(cam, Measurement<2>(o), s));
+    }
+    ceres_problem.AddResidualBlock(cost, new ceres::HuberLoss(options.huber_delta), x, p);
+    if (problem->points[static_cast<size_t>(o.point)].fixed) ceres_problem.SetParameterBlockConstant(p);
+    ++summary.num_static_terms;
+  }
+
+  // Dynamic terms.
+  for (size_t k = 0; k < problem->objects.size(); ++k) {
+    const BaObject& obj = problem->objects[k];
+    ObjectParams& op = obj_params[k];
+    op.projector = options.constrained ? obj.world_projector : Matrix6d::Identity();
+    op.twist.assign(obj.frames.size(), {0, 0, 0, 0, 0, 0});
+    op.pose.resize(obj.frames.size());
+    op.frame_of_keyframe.assign(nk, -1);
+    for (size_t f = 0; f < obj.frames.size(); ++f) {
+      obj.frames[f].world_from_object.ToParams(op.pose[f].data());
+      op.frame_of_keyframe[static_cast<size_t>(obj.frames[f].keyframe)] = static_cast<int>(f);
+    }
+    op.points.resize(obj.points_in_object.size());
+    for (size_t j = 0; j < obj.points_in_object.size(); ++j) {
+      Eigen::Map<Eigen::Vector3d>(op.points[j].data()) = obj.points_in_object[j];
+    }
+    // MAD scale of the object's initial residuals (paper: Σ from the MAD).
+    double mad_sigma = 0.0;
+    if (options.mad_sigma_for_dynamic) {
+      std::vector<double> comps;
+      for (const BaObservation& o : obj.observations) {
+        const int f = op.frame_of_keyframe[static_cast<size_t>(o.keyframe)];
+        DynamicResidual(cam, problem->keyframes[static_cast<size_t>(o.keyframe)].camera_from_world,
+                        obj.frames[static_cast<size_t>(f)].world_from_object,
+                        obj.points_in_object[static_cast<size_t>(o.point)], o, &comps);
+      }
+      mad_sigma = std::max(options.min_sigma_px, MadScale(comps));
+    }
+    for (const BaObservation& o : obj.observations) {
+      const int f = op.frame_of_keyframe[static_cast<size_t>(o.keyframe)];
+      double* x = add_keyframe(o.keyframe);
+      double* xi = op.twist[static_cast<size_t>(f)].data();
+      double* pose = op.pose[static_cast<size_t>(f)].data();
+      double* p = op.points[static_cast<size_t>(o.point)].data();
+      const double s = 1.0 / (options.mad_sigma_for_dynamic ? mad_sigma : o.sigma_px);
+      ceres::CostFunction* cost;
+      if (o.u_right >= 0.0) {
+        cost = options.use_autodiff
+                   ? optimization::DynamicReprojectionFunctor<3>::Create(cam, Measurement<3>(o), s, op.projector)
+                   : static_cast<ceres::CostFunction*>(
+                         new optimization::DynamicReprojectionCost<3>(cam, Measurement<3>(o), s, op.projector));
+      } else {
+        cost = options.use_autodiff
+                   ? optimization::DynamicReprojectionFunctor<2>::Create(cam, Measurement<2>(o), s, op.projector)
+                   : static_cast<ceres::CostFunction*>(
+                         new optimization::DynamicReprojectionCost<2>(cam, Measurement<2>(o), s, op.projector));
+      }
+      ceres_problem.AddResidualBlock(cost, new ceres::HuberLoss(options.huber_delta), x, xi, pose, p);
+      ceres_problem.SetManifold(pose, &se3_manifold);
+      ceres_problem.SetParameterBlockConstant(pose);  // optimised through ξ̃ only
+      if (obj.frames[static_cast<size_t>(f)].fixed) ceres_problem.SetParameterBlockConstant(xi);
+      if (obj.fixed_points) ceres_problem.SetParameterBlockConstant(p);
+      ++summary.num_dynamic_terms;
+    }
+    // Constant velocity over consecutive triplets of optimised frames.
+    if (options.use_const_velocity && options.const_velocity_sqrt_weight.squaredNorm() > 0.0) {
+      for (size_t f = 1; f + 1 < obj.frames.size(); ++f) {
+        double* blocks[6];
+        for (int d = -1; d <= 1; ++d) {
+          const size_t g = f + static_cast<size_t>(d + 1) - 1;
+          blocks[2 * (d + 1)] = op.twist[g].data();
+          blocks[2 * (d + 1) + 1] = op.pose[g].data();
+        }
+        ceres::CostFunction* cost =
+            options.use_autodiff
+                ? optimization::ConstantVelocityFunctor::Create(op.projector, options.const_velocity_sqrt_weight)
+                : static_cast<ceres::CostFunction*>(
+                      new optimization::ConstantVelocityCost(op.projector, options.const_velocity_sqrt_weight));
+        ceres_problem.AddResidualBlock(cost, new ceres::HuberLoss(options.const_velocity_huber), blocks[0],
+                                       blocks[1], blocks[2], blocks[3], blocks[4], blocks[5]);
+        for (int b = 0; b < 3; ++b) {
+          const size_t g = f + static_cast<size_t>(b) - 1;
+          ceres_problem.SetManifold(blocks[2 * b + 1], &se3_manifold);
+          ceres_problem.SetParameterBlockConstant(blocks[2 * b + 1]);
+          if (obj.frames[g].fixed) ceres_problem.SetParameterBlockConstant(blocks[2 * b]);
+        }
+        ++summary.num_const_velocity_terms;
+      }
+    }
+    // Keep the corrections inside range(Π) (well-conditioned normal equations).
+    const Eigen::Matrix<double, 6, Eigen::Dynamic> basis = ProjectorRangeBasis(op.projector);
+    ceres::Manifold* subspace = nullptr;
+    if (basis.cols() > 0 && basis.cols() < 6) {
+      manifolds.push_back(std::make_unique<LinearSubspaceManifold>(basis));
+      subspace = manifolds.back().get();
+    }
+    for (size_t f = 0; f < obj.frames.size(); ++f) {
+      double* xi = op.twist[f].data();
+      if (!ceres_problem.HasParameterBlock(xi) || ceres_problem.IsParameterBlockConstant(xi)) continue;
+      if (basis.cols() == 0) {
+        ceres_problem.SetParameterBlockConstant(xi);
+      } else if (subspace != nullptr) {
+        ceres_problem.SetManifold(xi, subspace);
+      }
+    }
+  }
+  summary.num_residual_blocks = ceres_problem.NumResidualBlocks();
+  if (summary.num_residual_blocks == 0) {
+    summary.message = "nothing to optimise";
+    return summary;
+  }
+
+  ceres::Solver::Options solver_options;
+  solver_options.linear_solver_type =
+      options.linear_solver == BaLinearSolver::kDenseSchur ? ceres::DENSE_SCHUR : ceres::SPARSE_SCHUR;
+  solver_options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  solver_options.max_num_iterations = options.max_iterations;
+  solver_options.num_threads = options.num_threads;
+  solver_options.logging_type = ceres::SILENT;
+  // Schur elimination order: points first (static and dynamic), then poses.
+  auto* ordering = new ceres::ParameterBlockOrdering;
+  for (auto& p : point_params) {
+    if (ceres_problem.HasParameterBlock(p.data())) ordering->AddElementToGroup(p.data(), 0);
+  }
+  for (auto& op : obj_params) {
+    for (auto& p : op.points) {
+      if (ceres_problem.HasParameterBlock(p.data())) ordering->AddElementToGroup(p.data(), 0);
+    }
+    for (auto& t : op.twist) {
+      if (ceres_problem.HasParameterBlock(t.data())) ordering->AddElementToGroup(t.data(), 1);
+    }
+    for (auto& p : op.pose) {
+      if (ceres_problem.HasParameterBlock(p.data())) ordering->AddElementToGroup(p.data(), 1);
+    }
+  }
+  for (auto& k : kf_params) {
+    if (ceres_problem.HasParameterBlock(k.data())) ordering->AddElementToGroup(k.data(), 1);
+  }
+  if (ordering->NumElements() > 0 && ordering->GroupSize(0) > 0) {
+    solver_options.linear_solver_ordering.reset(ordering);
+  } else {
+    delete ordering;
+    solver_options.linear_solver_type = ceres::DENSE_QR;
+  }
+  ceres::Solver::Summary ceres_summary;
+  ceres::Solve(solver_options, &ceres_problem, &ceres_summary);
+  summary.initial_cost = ceres_summary.initial_cost;
+  summary.final_cost = ceres_summary.final_cost;
+  summary.iterations = static_cast<int>(ceres_summary.iterations.size());
+  summary.usable = ceres_summary.IsSolutionUsable();
+  summary.message = ceres_summary.BriefReport();
+  if (!summary.usable) return summary;
+
+  // Write back.
+  for (size_t i = 0; i < nk; ++i) {
+    problem->keyframes[i].camera_from_world = SE3d::FromParams(kf_params[i].data());
+  }
+  for (size_t j = 0; j < problem->points.size(); ++j) {
+    problem->points[j].point_in_world = Eigen::Map<const Eigen::Vector3d>(point_params[j].data());
+  }
+  for (size_t k = 0; k < problem->objects.size(); ++k) {
+    BaObject& obj = problem->objects[k];
+    const ObjectParams& op = obj_params[k];
+    for (size_t f = 0; f < obj.frames.size(); ++f) {
+      const Vector6d xi = op.projector * Eigen::Map<const Vector6d>(op.twist[f].data());
+      obj.frames[f].world_from_object = SE3d::Exp(xi) * obj.frames[f].world_from_object;
+    }
+    for (size_t j = 0; j < obj.points_in_object.size(); ++j) {
+      obj.points_in_object[j] = Eigen::Map<const Eigen::Vector3d>(op.points[j].data());
+    }
+  }
+  return summary;
+}
+
+}  // namespace twist::objects
