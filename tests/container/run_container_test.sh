@@ -103,6 +103,10 @@ else
   CONTEXT=$WORK/context
   mkdir -p "$CONTEXT"
   git -C "$ROOT" archive --format=tar HEAD | tar -C "$CONTEXT" -x
+  # Buildah's layer cache keys COPY on file metadata too: a fixed mtime keeps
+  # the dependency layer (COPY deploy/install-deps.sh + RUN) cached across
+  # runs as long as the script's content is unchanged.
+  find "$CONTEXT" -exec touch -h -d @1700000000 {} +
   log "building $IMAGE from HEAD $(git -C "$ROOT" rev-parse --short HEAD)"
 fi
 T_BUILD=$(now)
@@ -140,7 +144,7 @@ CONTAINERS+=("$C")
 check "container user is 10001" test "$(buildah run --isolation chroot "$C" -- id -u)" = 10001
 T_START=$(now)
 buildah run --isolation chroot "$C" -- /usr/local/bin/twistslam-server \
-  --listen 127.0.0.1:0 --state-dir /var/lib/twistslam --config /etc/twistslam/server.conf \
+  --listen 127.0.0.1:0 --state-dir /var/lib/twistslam --config /etc/twistslam/server.yaml \
   >"$WORK/server.out" 2>"$WORK/server.err" </dev/null &
 SERVER_PID=$!
 ADDR=""

@@ -24,8 +24,9 @@ What is checked (each failure is one line naming the file and the problem):
     terminationGracePeriodSeconds >= the server's shutdown deadline + margin;
     CPU and memory requests and limits; a PodDisruptionBudget that selects the
     pods and allows one eviction; non-root security context;
-  * the server configs deploy/config/server.conf and deploy/k8s/config/
-    server.conf parse and give the shutdown deadline.
+  * the server configs (deploy/config/server.yaml in the image,
+    deploy/k8s/config/server.yaml in the ConfigMap) parse as the server reads
+    them and give its shutdown deadline.
 
 --self-test breaks the rendered manifests in known ways in memory and checks
 that each breakage is reported (so the checks themselves can fail).
@@ -87,49 +88,59 @@ def parse_duration_s(value):
     return number * {"ms": 0.001, "s": 1, "m": 60, "h": 3600, None: 1}[m.group(2)]
 
 
-# Keys that may hold the server's shutdown (drain + persist) deadline.
-DEADLINE_KEYS = ("shutdown_deadline_s", "shutdown_deadline", "drain_deadline_s",
-                 "drain_deadline", "shutdown_timeout_s", "shutdown_timeout")
+# The server's shutdown settings (server/server_flags.cc) and their defaults.
+# On SIGTERM it drains streams for up to drain_timeout_s, persists every
+# session, and ends the remaining calls by shutdown_deadline_s after the
+# signal, so it is gone after max(drain_timeout_s + persisting,
+# shutdown_deadline_s).
+SHUTDOWN_DEFAULTS = {"drain_timeout_s": 5.0, "shutdown_deadline_s": 10.0}
 
 
 def parse_config_text(text):
-    """Parses a server config: `key = value` / `key: value` lines with '#'
-    comments (the server's format), or JSON/YAML. Returns a flat dict."""
+    """Top-level `key: value` settings of a server config, which is YAML as
+    OpenCV's cv::FileStorage reads it (a `%YAML:1.0` first line, `---`, '#'
+    comments, nested maps such as `slam:` indented) or JSON."""
     stripped = text.strip()
     if stripped.startswith("{"):
         return json.loads(stripped)
+    lines = text.splitlines()
+    if not lines or not lines[0].startswith("%YAML"):
+        raise ValueError("the first line must be %YAML:1.0 (cv::FileStorage needs it)")
     values = {}
-    for number, raw in enumerate(text.splitlines(), 1):
-        line = raw.split("#", 1)[0].strip()
-        if not line:
-            continue
-        m = re.fullmatch(r"([A-Za-z_][A-Za-z0-9_.\-]*)\s*[=:]\s*(.*)", line)
+    for number, raw in enumerate(lines[1:], 2):
+        line = raw.split("#", 1)[0].rstrip()
+        if not line.strip() or line.strip() == "---" or line[0] in " \t":
+            continue  # blank, document start, or inside a nested map
+        m = re.fullmatch(r"([A-Za-z_][A-Za-z0-9_]*)\s*:\s*(.*)", line)
         if not m:
-            raise ValueError(f"line {number}: expected 'key = value': {raw!r}")
-        value = m.group(2).strip().strip('"')
-        values[m.group(1)] = value
+            raise ValueError(f"line {number}: expected 'key: value': {raw!r}")
+        if "-" in m.group(1):
+            raise ValueError(f"line {number}: keys use '_' for '-'")
+        values[m.group(1)] = m.group(2).strip().strip('"')
     return values
 
 
 def shutdown_deadline_s(config_path, problems):
-    where = config_path
+    """Seconds the server may take to stop after SIGTERM (before persisting
+    time), from the config and the server's defaults."""
+    where = os.path.relpath(config_path)
     try:
         with open(config_path, encoding="utf-8") as f:
             values = parse_config_text(f.read())
     except (OSError, ValueError) as e:
         problems.add(where, f"cannot read server config: {e}")
         return None
-    for key in DEADLINE_KEYS:
-        if key in values:
-            try:
-                seconds = parse_duration_s(values[key])
-            except ValueError as e:
-                problems.add(where, f"{key}: {e}")
-                return None
-            problems.check(seconds > 0, where, f"{key} must be > 0")
-            return seconds
-    problems.add(where, "no shutdown deadline (one of: " + ", ".join(DEADLINE_KEYS) + ")")
-    return None
+    settings = {}
+    for key, default in SHUTDOWN_DEFAULTS.items():
+        try:
+            settings[key] = parse_duration_s(values.get(key, default))
+        except ValueError as e:
+            problems.add(where, f"{key}: {e}")
+            return None
+    problems.check(settings["shutdown_deadline_s"] > 0, where, "shutdown_deadline_s must be > 0")
+    problems.check(settings["drain_timeout_s"] <= settings["shutdown_deadline_s"], where,
+                   "drain_timeout_s above shutdown_deadline_s leaves no time to persist")
+    return max(settings.values())
 
 
 # ---------------------------------------------------------------------------
@@ -615,6 +626,8 @@ def k8s_variants(root, problems):
 def yaml_files(root):
     files = [os.path.join(root, "deploy/compose.yaml")]
     for dirpath, _, names in os.walk(os.path.join(root, "deploy/k8s")):
+        if os.path.basename(dirpath) == "config":
+            continue  # server configs: OpenCV FileStorage YAML, checked above
         files += [os.path.join(dirpath, n) for n in sorted(names) if n.endswith((".yaml", ".yml"))]
     return files
 
@@ -700,15 +713,21 @@ def self_test(root):
         else:
             print(f"FAIL {name}: not detected")
             failures += 1
-    # A grace period is also checked against the config's deadline text.
-    for text, expect in (("shutdown_deadline_s = 30\n", 30.0), ("shutdown_deadline_s: 2m", 120.0),
-                         ('{"shutdown_deadline_s": 1.5}', 1.5)):
-        got = parse_config_text(text)
-        value = parse_duration_s(got["shutdown_deadline_s"])
+    # The config reader: OpenCV-style YAML, JSON, and a header-less file.
+    cases = (("%YAML:1.0\n---\nshutdown_deadline_s: 30\nslam:\n  seed: 3\n", 30.0),
+             ('{"shutdown_deadline_s": 12, "drain_timeout_s": 1}', 12.0),
+             ("%YAML:1.0\ndrain_timeout_s: 20\n", 20.0),
+             ("shutdown_deadline_s: 30\n", None))
+    for text, expect in cases:
+        try:
+            got = parse_config_text(text)
+            value = max(parse_duration_s(got.get(k, d)) for k, d in SHUTDOWN_DEFAULTS.items())
+        except ValueError:
+            value = None
         if value != expect:
             print(f"FAIL config parse {text!r}: {value} != {expect}")
             failures += 1
-    print(f"{len(breakages) + 3 - failures} passed, {failures} failed")
+    print(f"{len(breakages) + len(cases) - failures} passed, {failures} failed")
     return 1 if failures else 0
 
 
