@@ -142,7 +142,9 @@ void ObjectTracker::RecordPose(const FrameContext& ctx, TrackedObject* o) {
   s.timestamp_ns = ctx.frame.timestamp_ns;
   s.world_from_object = o->world_from_object;
   s.twist_step = o->twist_step;
-  o->history.push_back(s);
+  s.observations = std::move(o->pending_observations);
+  o->pending_observations.clear();
+  o->history.push_back(std::move(s));
   while (static_cast<int>(o->history.size()) > options_.max_history) o->history.pop_front();
 }
 
@@ -180,6 +182,7 @@ void ObjectTracker::AddNewPoints(const FrameContext& ctx,
     p.last_uv = kps.uv[k];
     p.seen_last_frame = true;
     p.num_observations = 1;
+    o->pending_observations.push_back({p.id, kps.uv[k], kps.u_right[k]});
     o->points.push_back(std::move(p));
     taken.push_back(kps.uv[k]);
   }
@@ -229,6 +232,7 @@ bool ObjectTracker::Create(const FrameContext& ctx, const ObjectDetectionInput& 
     p.last_uv = kps.uv[k];
     p.seen_last_frame = true;
     p.num_observations = 1;
+    o->pending_observations.push_back({p.id, kps.uv[k], kps.u_right[k]});
     o->points.push_back(std::move(p));
   }
   o->cluster_id = det.cluster_id;
@@ -383,6 +387,7 @@ bool ObjectTracker::Track(const FrameContext& ctx, const ObjectDetectionInput& d
     p.last_uv = obs[j].uv;
     p.seen_last_frame = true;
     ++p.num_observations;
+    o->pending_observations.push_back({p.id, obs[j].uv, obs[j].u_right});
     occupied.push_back(obs[j].uv);
   }
   AddNewPoints(ctx, det, o, occupied);
@@ -464,6 +469,7 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
     p.last_uv = obs[j].uv;
     p.seen_last_frame = true;
     ++p.num_observations;
+    o->pending_observations.push_back({p.id, obs[j].uv, obs[j].u_right});
     occupied.push_back(obs[j].uv);
   }
   AddNewPoints(ctx, det, o, occupied);
@@ -495,6 +501,7 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
   const double dt = has_prev_ ? (frame.timestamp_ns - prev_timestamp_ns_) * 1e-9 : 0.0;
   FrameContext ctx(frame, dt);
   stats_ = ObjectTrackerStats{};
+  for (auto& [id, obj] : objects_) obj.pending_observations.clear();
 
   std::unordered_set<int64_t> handled;
   std::vector<const ObjectDetectionInput*> unmatched;

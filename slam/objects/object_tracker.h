@@ -54,11 +54,20 @@ struct ObjectPoint {
   int num_observations = 0;
 };
 
+// A point of an object observed in one frame (an inlier of the estimate).
+struct ObjectPointObservation {
+  int64_t point_id = 0;
+  Eigen::Vector2d uv = Eigen::Vector2d::Zero();
+  double u_right = -1.0;  // < 0: mono
+};
+
 struct ObjectPoseSample {
   int64_t frame_index = 0;
   int64_t timestamp_ns = 0;
   geometry::SE3d world_from_object;
   geometry::Vector6d twist_step = geometry::Vector6d::Zero();  // into this frame, world, per frame
+  // The object's points observed in this frame (for the dynamic BA).
+  std::vector<ObjectPointObservation> observations;
 };
 
 struct TrackedObject {
@@ -79,6 +88,8 @@ struct TrackedObject {
   cv::Rect2d last_box;
   std::deque<ObjectPoseSample> history;  // most recent last, bounded
   int64_t next_point_id = 1;
+  // Observations of the current frame, moved into the history by RecordPose.
+  std::vector<ObjectPointObservation> pending_observations;
   // Diagnostics of the last estimate.
   int last_num_inliers = 0;
   double last_sigma_px = 0.0;

@@ -7,123 +7,12 @@
 
 #include "slam/objects/joint_frames.h"
 #include "slam/semantic/plane_fitting.h"
-#include "tests/slam/objects/synthetic_objects.h"
+#include "tests/slam/objects/car_sequence.h"
 
 namespace twist::objects {
 namespace {
 
 using namespace twist::objects::testing;  // NOLINT
-
-// A car driving on the road (planar motion: forward + slow turn) seen by a
-// camera moving forward. Keypoints are the exact projections of the car's
-// points (plus optional noise) with a fixed random descriptor per point, and
-// the client's dense flow carries the exact displacement of every point.
-class CarSequence {
- public:
-  CarSequence(double noise_px, uint64_t seed) : noise_(noise_px), rng_(seed) {
-    cam_ = KittiLikeCamera();
-    road_ = semantic::NormalizePlane(Eigen::Vector4d(0, -1, 0, 1.65));
-    world_from_joint_ = RoadJointFrame(Eigen::Vector3d(3.0, 0, 14.0));
-    world_from_object_ = world_from_joint_;
-    Vector6d twist_in_joint;  // per frame (10 Hz): 8 m/s forward, turning
-    twist_in_joint << 0.05, 0.8, 0, 0, 0, 0.02;
-    step_ = world_from_joint_.Adjoint() * twist_in_joint;
-    points_ = CarPoints(60, &rng_);
-    std::uniform_int_distribution<int> byte(0, 255);
-    for (size_t k = 0; k < points_.size(); ++k) {
-      cv::Mat d(1, 32, CV_8UC1);
-      for (int b = 0; b < 32; ++b) d.at<uint8_t>(0, b) = static_cast<uint8_t>(byte(rng_));
-      descriptors_.push_back(d);
-    }
-  }
-
-  const geometry::StereoCamera& camera() const { return cam_; }
-  const SE3d& world_from_object() const { return world_from_object_; }
-  const Vector6d& step() const { return step_; }
-
-  // Frame i (advances the truth by one step after frame 0).
-  ObjectFrameInput Next(int64_t cluster_id, bool detected) {
-    if (index_ > 0) world_from_object_ = SE3d::Exp(step_) * world_from_object_;
-    const SE3d world_from_camera(geometry::SO3d(), Eigen::Vector3d(0, 0, 0.6 * index_));
-    ObjectFrameInput f;
-    f.frame_index = index_;
-    f.timestamp_ns = 1'000'000'000 + index_ * 100'000'000;
-    f.camera_from_world = world_from_camera.Inverse();
-    f.left = cv::Mat(cam_.height, cam_.width, CV_8UC1, cv::Scalar(100));
-    f.flow = cv::Mat(cam_.height, cam_.width, CV_32FC2, cv::Scalar(0, 0));
-    std::normal_distribution<double> g(0.0, noise_ > 0 ? noise_ : 1.0);
-    const SE3d camera_from_object = f.camera_from_world * world_from_object_;
-    double x0 = 1e9, y0 = 1e9, x1 = -1e9, y1 = -1e9;
-    f.keypoints.descriptors = cv::Mat(0, 32, CV_8UC1);
-    std::vector<Eigen::Vector2d> true_uv(points_.size());
-    for (size_t k = 0; k < points_.size(); ++k) {
-      const Eigen::Vector3d uvr = cam_.ProjectStereo(Eigen::Vector3d(camera_from_object * points_[k]));
-      true_uv[k] = uvr.head<2>();
-      if (!detected) continue;
-      Eigen::Vector2d uv = uvr.head<2>();
-      double ur = uvr.z();
-      if (noise_ > 0) {
-        uv += Eigen::Vector2d(g(rng_), g(rng_));
-        ur += g(rng_);
-      }
-      f.keypoints.uv.push_back(uv);
-      f.keypoints.u_right.push_back(ur);
-      f.keypoints.descriptors.push_back(descriptors_[k]);
-      x0 = std::min(x0, uv.x());
-      y0 = std::min(y0, uv.y());
-      x1 = std::max(x1, uv.x());
-      y1 = std::max(y1, uv.y());
-    }
-    // Exact dense flow around the previous true projections (pixels claimed by
-    // two points get NaN: no flow there).
-    if (!prev_uv_.empty()) {
-      cv::Mat owner(cam_.height, cam_.width, CV_32SC1, cv::Scalar(-1));
-      for (size_t k = 0; k < points_.size(); ++k) {
-        const Eigen::Vector2d d = true_uv[k] - prev_uv_[k];
-        const int px = static_cast<int>(std::floor(prev_uv_[k].x()));
-        const int py = static_cast<int>(std::floor(prev_uv_[k].y()));
-        for (int dy = 0; dy <= 1; ++dy) {
-          for (int dx = 0; dx <= 1; ++dx) {
-            if (px + dx >= 0 && py + dy >= 0 && px + dx < cam_.width && py + dy < cam_.height) {
-              int& who = owner.at<int>(py + dy, px + dx);
-              f.flow.at<cv::Vec2f>(py + dy, px + dx) =
-                  who >= 0 ? cv::Vec2f(NAN, NAN) : cv::Vec2f(static_cast<float>(d.x()), static_cast<float>(d.y()));
-              who = static_cast<int>(k);
-            }
-          }
-        }
-      }
-    }
-    prev_uv_ = true_uv;
-    if (detected) {
-      ObjectDetectionInput det;
-      det.cluster_id = cluster_id;
-      det.class_id = 26;
-      det.instance_id = static_cast<int>(cluster_id);
-      det.box = cv::Rect2d(x0 - 3, y0 - 3, x1 - x0 + 6, y1 - y0 + 6);
-      JointSpec spec;
-      spec.type = joints::JointType::kPlanar;
-      spec.parent_plane = road_;
-      spec.anchor = world_from_object_.translation();
-      det.joint = ResolveJointOrFree(spec);
-      f.detections.push_back(det);
-    }
-    ++index_;
-    return f;
-  }
-
- private:
-  double noise_;
-  std::mt19937_64 rng_;
-  geometry::StereoCamera cam_;
-  Eigen::Vector4d road_;
-  SE3d world_from_joint_, world_from_object_;
-  Vector6d step_;
-  std::vector<Eigen::Vector3d> points_;
-  std::vector<cv::Mat> descriptors_;
-  std::vector<Eigen::Vector2d> prev_uv_;
-  int64_t index_ = 0;
-};
 
 TEST(JointFrames, PlanarFromParentRoadAndRevoluteFromAxis) {
   JointSpec spec;

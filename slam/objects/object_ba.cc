@@ -1,0 +1,105 @@
+#include "slam/objects/object_ba.h"
+
+#include <unordered_map>
+
+#include <glog/logging.h>
+
+namespace twist::objects {
+
+using geometry::SE3d;
+
+std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
+                                                const std::map<int64_t, int>& keyframe_of_frame,
+                                                const ObjectBaOptions& options,
+                                                DynamicBaProblem* problem) {
+  CHECK(problem != nullptr);
+  std::vector<ObjectBaLink> links;
+  for (const auto& [id, object] : tracker.objects()) {
+    std::vector<const ObjectPoseSample*> samples;
+    for (const ObjectPoseSample& s : object.history) {
+      if (keyframe_of_frame.count(s.frame_index) > 0) samples.push_back(&s);
+    }
+    if (static_cast<int>(samples.size()) < options.min_frames) continue;
+    // Points observed often enough within the window.
+    std::unordered_map<int64_t, int> count;
+    for (const ObjectPoseSample* s : samples) {
+      for (const ObjectPointObservation& o : s->observations) ++count[o.point_id];
+    }
+    std::unordered_map<int64_t, int> index_of_point;
+    BaObject ba;
+    ba.id = id;
+    ba.world_projector = object.joint.WorldProjector();
+    ObjectBaLink link;
+    link.object_id = id;
+    for (const ObjectPoint& p : object.points) {
+      auto it = count.find(p.id);
+      if (it == count.end() || it->second < options.min_observations_per_point) continue;
+      index_of_point[p.id] = static_cast<int>(ba.points_in_object.size());
+      ba.points_in_object.push_back(p.point_in_object);
+      link.point_ids.push_back(p.id);
+    }
+    if (ba.points_in_object.empty()) continue;
+    for (const ObjectPoseSample* s : samples) {
+      BaObjectFrame f;
+      f.keyframe = keyframe_of_frame.at(s->frame_index);
+      f.world_from_object = s->world_from_object;
+      f.fixed = ba.frames.empty();
+      ba.frames.push_back(f);
+      link.frame_indices.push_back(s->frame_index);
+      for (const ObjectPointObservation& o : s->observations) {
+        auto it = index_of_point.find(o.point_id);
+        if (it == index_of_point.end()) continue;
+        BaObservation obs;
+        obs.keyframe = f.keyframe;
+        obs.point = it->second;
+        obs.uv = o.uv;
+        obs.u_right = o.u_right;
+        obs.sigma_px = options.sigma_px;
+        ba.observations.push_back(obs);
+      }
+    }
+    link.problem_object = static_cast<int>(problem->objects.size());
+    problem->objects.push_back(std::move(ba));
+    links.push_back(std::move(link));
+  }
+  return links;
+}
+
+void ApplyBaToTrackedObjects(const DynamicBaProblem& problem,
+                             const std::vector<ObjectBaLink>& links,
+                             ObjectTracker* tracker) {
+  CHECK(tracker != nullptr);
+  for (const ObjectBaLink& link : links) {
+    TrackedObject* o = tracker->mutable_object(link.object_id);
+    if (o == nullptr) continue;
+    const BaObject& ba = problem.objects[static_cast<size_t>(link.problem_object)];
+    std::unordered_map<int64_t, const SE3d*> pose_of_frame;
+    for (size_t f = 0; f < ba.frames.size(); ++f) {
+      pose_of_frame[link.frame_indices[f]] = &ba.frames[f].world_from_object;
+    }
+    for (ObjectPoseSample& s : o->history) {
+      auto it = pose_of_frame.find(s.frame_index);
+      if (it != pose_of_frame.end()) s.world_from_object = *it->second;
+    }
+    std::unordered_map<int64_t, size_t> point_index;
+    for (size_t j = 0; j < link.point_ids.size(); ++j) point_index[link.point_ids[j]] = j;
+    for (ObjectPoint& p : o->points) {
+      auto it = point_index.find(p.id);
+      if (it != point_index.end()) p.point_in_object = ba.points_in_object[it->second];
+    }
+    if (!o->history.empty() && pose_of_frame.count(o->history.back().frame_index) > 0 &&
+        o->state != ObjectState::kLost) {
+      o->world_from_object = o->history.back().world_from_object;
+      if (o->history.size() >= 2) {
+        const ObjectPoseSample& prev = o->history[o->history.size() - 2];
+        if (pose_of_frame.count(prev.frame_index) > 0 && o->history.back().frame_index == prev.frame_index + 1) {
+          o->twist_step = o->joint.WorldProjector() *
+                          (o->world_from_object * prev.world_from_object.Inverse()).Log();
+          o->history.back().twist_step = o->twist_step;
+        }
+      }
+    }
+  }
+}
+
+}  // namespace twist::objects

@@ -1,0 +1,46 @@
+// Glue between the object tracker and the dynamic bundle adjustment: adds the
+// tracked objects' recent poses, points and observations to a
+// DynamicBaProblem over the engine's keyframes, and writes the refined poses
+// and points back into the tracker.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <vector>
+
+#include "slam/objects/dynamic_ba.h"
+#include "slam/objects/object_tracker.h"
+
+namespace twist::objects {
+
+// Which BA object came from which tracked object, frame by frame.
+struct ObjectBaLink {
+  int64_t object_id = 0;
+  int problem_object = 0;               // index into DynamicBaProblem::objects
+  std::vector<int64_t> frame_indices;   // per BaObjectFrame
+  std::vector<int64_t> point_ids;       // per BaObject point
+};
+
+struct ObjectBaOptions {
+  int min_frames = 3;            // objects seen in fewer window frames are skipped
+  int min_observations_per_point = 2;
+  double sigma_px = 1.0;         // per observation (MAD replaces it by default)
+};
+
+// For every tracked object, the history samples whose frame index is in
+// `keyframe_of_frame` (frame index -> index into problem->keyframes; pass the
+// temporal set) become BaObjectFrames (the oldest one fixed: the gauge of the
+// object's points), and their inlier observations become dynamic terms.
+std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
+                                                const std::map<int64_t, int>& keyframe_of_frame,
+                                                const ObjectBaOptions& options,
+                                                DynamicBaProblem* problem);
+
+// Writes the solved poses and points back: history poses, points in the
+// object frame, the current pose when the newest frame was in the window, and
+// the last step twist Log(P_i P_{i−1}⁻¹) when both frames were.
+void ApplyBaToTrackedObjects(const DynamicBaProblem& problem,
+                             const std::vector<ObjectBaLink>& links,
+                             ObjectTracker* tracker);
+
+}  // namespace twist::objects
