@@ -1,5 +1,7 @@
 // `twistslam eval --dataset DIR --format kitti-odometry|kitti-tracking --seq SEQ
 //                 --est OUTDIR [--json FILE]`
+// `twistslam eval --dataset DIR --format ... --seq SEQ --write-gt-run DIR` writes
+// the ground truth in the run-output format (a self-check: evaluating it gives zeros).
 // Camera and object metrics of a run (DESIGN.md §6) as a table on stdout and
 // optionally as JSON.
 #include <iostream>
@@ -16,7 +18,8 @@ int EvalCommand(int argc, char** argv) {
   parser.AddValue("dataset", "DIR", "dataset root (DESIGN.md §5 layouts)")
       .AddValue("format", "FORMAT", "kitti-odometry or kitti-tracking")
       .AddValue("seq", "SEQ", "sequence name, e.g. 06 or 0001")
-      .AddValue("est", "OUTDIR", "output directory of `twistslam run` (camera.txt, objects.txt)")
+      .AddValue("est", "OUTDIR", "output directory of `twistslam run` (camera.txt, objects.txt)",
+                /*required=*/false)
       .AddValue("json", "FILE", "also write the metrics as JSON to FILE", /*required=*/false)
       .AddValue("moving-speed", "M_PER_S",
                 "objects whose mean ground-truth speed exceeds this are 'moving'",
@@ -24,10 +27,17 @@ int EvalCommand(int argc, char** argv) {
       .AddValue("min-mask-pixels", "N",
                 "visible-coverage counts frames where the object shows >= N mask pixels",
                 /*required=*/false, "200")
-      .AddFlag("no-mask-pixels", "skip reading the masks (no visible-coverage figure)");
+      .AddFlag("no-mask-pixels", "skip reading the masks (no visible-coverage figure)")
+      .AddValue("write-gt-run", "DIR",
+                "instead of evaluating, write the sequence's ground truth as run outputs into "
+                "DIR (evaluating DIR then gives zeros)",
+                /*required=*/false);
   std::optional<Args> args = parser.Parse(argc, argv);
   if (!args) return parser.exit_code();
 
+  if (args->Has("est") == args->Has("write-gt-run")) {
+    return Fail("eval", "give exactly one of --est OUTDIR and --write-gt-run DIR", 2);
+  }
   io::RunEvalOptions options;
   const std::optional<double> moving = args->GetDouble("moving-speed", 0.5);
   if (!moving || *moving < 0) return Fail("eval", "--moving-speed must be a number >= 0", 2);
@@ -42,6 +52,13 @@ int EvalCommand(int argc, char** argv) {
   absl::StatusOr<std::unique_ptr<io::SequenceReader>> sequence =
       io::OpenSequence(args->Get("dataset"), *format, args->Get("seq"));
   if (!sequence.ok()) return Fail("eval", std::string(sequence.status().message()));
+  if (args->Has("write-gt-run")) {
+    absl::Status s = io::WriteGroundTruthAsRun(**sequence, args->Get("write-gt-run"));
+    if (!s.ok()) return Fail("eval", std::string(s.message()));
+    std::cout << "wrote the ground truth of sequence " << (*sequence)->sequence() << " to "
+              << args->Get("write-gt-run") << "\n";
+    return 0;
+  }
   absl::StatusOr<io::RunEvaluation> eval =
       io::EvaluateRunDirectory(**sequence, args->Get("est"), options);
   if (!eval.ok()) return Fail("eval", std::string(eval.status().message()));

@@ -1,5 +1,10 @@
 #include "slam/io/evaluation.h"
 
+#include <algorithm>
+#include <filesystem>
+#include <map>
+#include <system_error>
+
 #include "slam/io/file_util.h"
 #include "slam/io/json_writer.h"
 
@@ -90,6 +95,57 @@ absl::StatusOr<RunEvaluation> EvaluateRunDirectory(const SequenceReader& sequenc
     eval.objects_note = "the sequence has no object ground truth (objects_gt, or label_02 with poses)";
   }
   return eval;
+}
+
+absl::Status WriteGroundTruthAsRun(const SequenceReader& sequence, const std::string& dir) {
+  if (!sequence.has_gt_poses()) {
+    return absl::FailedPreconditionError("sequence " + sequence.sequence() +
+                                         " has no ground-truth camera poses");
+  }
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec || !DirExists(dir)) return absl::FailedPreconditionError("cannot create directory " + dir);
+  std::vector<ObjectGtRow> gt = sequence.gt_objects();
+  if (!sequence.has_gt_objects() && sequence.has_labels() && sequence.tracking_calib()) {
+    gt = ObjectsGtFromLabels(sequence.labels(), sequence.gt_world_from_camera(),
+                             sequence.tracking_calib()->left_from_ref_translation);
+  }
+  std::map<std::pair<int64_t, int64_t>, const ObjectGtRow*> by_key;
+  for (const ObjectGtRow& row : gt) by_key[{row.track_id, row.frame}] = &row;
+  const std::vector<int64_t>& stamps = sequence.timestamps_ns();
+  std::vector<ObjectTrackRow> rows;
+  for (const ObjectGtRow& g : gt) {
+    ObjectTrackRow r;
+    r.frame = g.frame;
+    r.track_id = g.track_id;
+    r.class_id = g.class_id;
+    r.instance_id = g.track_id;
+    r.world_from_object = g.world_from_object;
+    auto prev = by_key.find({g.track_id, g.frame - 1});
+    auto next = by_key.find({g.track_id, g.frame + 1});
+    if (prev != by_key.end() && g.frame >= 1) {
+      const double dt = NsToSeconds(stamps[g.frame] - stamps[g.frame - 1]);
+      r.twist_in_world =
+          (g.world_from_object * prev->second->world_from_object.Inverse()).Log() / dt;
+    } else if (next != by_key.end() && g.frame + 1 < sequence.size()) {
+      const double dt = NsToSeconds(stamps[g.frame + 1] - stamps[g.frame]);
+      r.twist_in_world =
+          (next->second->world_from_object * g.world_from_object.Inverse()).Log() / dt;
+    }
+    rows.push_back(r);
+  }
+  std::sort(rows.begin(), rows.end(), [](const ObjectTrackRow& a, const ObjectTrackRow& b) {
+    return a.frame != b.frame ? a.frame < b.frame : a.track_id < b.track_id;
+  });
+  std::vector<StampedPose> tum;
+  for (int64_t i = 0; i < sequence.size(); ++i) {
+    tum.push_back({stamps[i], sequence.gt_world_from_camera()[i]});
+  }
+  absl::Status s = WriteKittiPoses(JoinPath(dir, "camera.txt"), sequence.gt_world_from_camera());
+  if (!s.ok()) return s;
+  s = WriteTumTrajectory(JoinPath(dir, "camera_tum.txt"), tum);
+  if (!s.ok()) return s;
+  return WriteObjectTracks(JoinPath(dir, "objects.txt"), rows);
 }
 
 std::string FormatRunEvaluation(const RunEvaluation& eval) {

@@ -52,6 +52,13 @@ absl::StatusOr<RunEvaluation> EvaluateRunDirectory(const SequenceReader& sequenc
                                                    const std::string& est_dir,
                                                    const RunEvalOptions& options);
 
+// Writes the sequence's own ground truth in the run-output format (camera.txt,
+// camera_tum.txt, objects.txt with track id = instance id and the world twist
+// of each step, ξ_i = Log(gt_wo(i) gt_wo(i−1)⁻¹)/Δt, or of the next step for
+// an object's first frame). Evaluating it gives zeros: a self-check of the
+// whole evaluation path. Fails without ground-truth camera poses.
+absl::Status WriteGroundTruthAsRun(const SequenceReader& sequence, const std::string& dir);
+
 std::string FormatRunEvaluation(const RunEvaluation& eval);
 std::string RunEvaluationJson(const RunEvaluation& eval);
 

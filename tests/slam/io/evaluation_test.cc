@@ -162,6 +162,21 @@ TEST(Evaluation, Failures) {
               HasSubstr("camera.txt: 11 poses for a sequence of 12 frames"));
 }
 
+TEST(Evaluation, GroundTruthWrittenAsRunEvaluatesToZeros) {
+  ScratchDir dir;
+  MakeDataset(dir / "data");
+  auto seq = OpenSequence(dir / "data", "kitti-tracking", "0000");
+  ASSERT_TRUE(seq.ok()) << seq.status();
+  ASSERT_TRUE(WriteGroundTruthAsRun(**seq, dir / "gt").ok());
+  auto eval = EvaluateRunDirectory(**seq, dir / "gt", RunEvalOptions());
+  ASSERT_TRUE(eval.ok()) << eval.status();
+  EXPECT_NEAR(eval->camera->ate_rmse, 0, 1e-7);
+  EXPECT_NEAR(eval->objects->all.ate, 0, 1e-7);
+  EXPECT_NEAR(eval->objects->all.speed_error_kmh, 0, 1e-5);
+  EXPECT_NEAR(eval->objects->objects[0].gt_mean_speed_kmh, 28.8, 1e-6);
+  EXPECT_EQ(eval->objects->num_unmatched_est_tracks, 0);
+}
+
 TEST(Evaluation, ObjectsGroundTruthFromLabelsAndPoses) {
   KittiLabel l;
   l.frame = 1;
