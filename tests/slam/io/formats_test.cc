@@ -12,6 +12,7 @@
 #include "slam/io/json_writer.h"
 #include "slam/io/kitti_calib.h"
 #include "slam/io/kitti_labels.h"
+#include "slam/io/ply.h"
 #include "slam/io/run_output.h"
 #include "slam/io/trajectory_io.h"
 #include "tests/slam/io/test_util.h"
@@ -517,6 +518,52 @@ TEST(RunOutput, WritesAllFilesReadableBack) {
   EXPECT_THAT(*summary, HasSubstr("\"extra\": 2.5"));
   EXPECT_THAT(*summary, HasSubstr("\"median\": 12"));
   EXPECT_THAT(*summary, HasSubstr("\\\"x\\\""));
+}
+
+// ---------------------------------------------------------------- PLY
+TEST(Ply, AsciiRoundTrip) {
+  ScratchDir dir;
+  std::vector<PlyPoint> pts(3);
+  for (int i = 0; i < 3; ++i) {
+    pts[i].p_in_world = Eigen::Vector3d(i, -0.5 * i, 10.25 + i);
+    pts[i].class_id = 7 + i;
+    pts[i].cluster_id = 100 + i;
+    pts[i].r = 200;
+  }
+  ASSERT_TRUE(WritePlyPoints(dir / "m.ply", pts).ok());
+  auto read = ReadPlyPoints(dir / "m.ply");
+  ASSERT_TRUE(read.ok()) << read.status();
+  ASSERT_EQ(read->size(), 3u);
+  EXPECT_EQ((*read)[2].p_in_world, Eigen::Vector3d(2, -1, 12.25));
+  EXPECT_EQ((*read)[1].class_id, 8);
+  EXPECT_EQ((*read)[1].cluster_id, 101);
+  EXPECT_EQ((*read)[0].r, 200);
+}
+
+TEST(Ply, BinaryLittleEndianAndTruncation) {
+  ScratchDir dir;
+  std::string bytes =
+      "ply\nformat binary_little_endian 1.0\ncomment x\nelement vertex 2\nproperty float x\n"
+      "property float y\nproperty float z\nproperty uchar label\nelement face 0\n"
+      "property list uchar int vertex_indices\nend_header\n";
+  for (int i = 0; i < 2; ++i) {
+    const float xyz[3] = {1.5f * i, 2.0f, -3.0f};
+    bytes.append(reinterpret_cast<const char*>(xyz), sizeof(xyz));
+    bytes.push_back(static_cast<char>(9));
+  }
+  WriteText(dir / "b.ply", bytes);
+  auto read = ReadPlyPoints(dir / "b.ply");
+  ASSERT_TRUE(read.ok()) << read.status();
+  ASSERT_EQ(read->size(), 2u);
+  EXPECT_EQ((*read)[1].p_in_world, Eigen::Vector3d(1.5, 2.0, -3.0));
+  WriteText(dir / "t.ply", bytes.substr(0, bytes.size() - 5));
+  read = ReadPlyPoints(dir / "t.ply");
+  ASSERT_FALSE(read.ok());
+  EXPECT_THAT(std::string(read.status().message()), HasSubstr("t.ply: truncated binary PLY body"));
+  WriteText(dir / "n.ply", "hello");
+  read = ReadPlyPoints(dir / "n.ply");
+  ASSERT_FALSE(read.ok());
+  EXPECT_THAT(std::string(read.status().message()), HasSubstr("n.ply: not a PLY file"));
 }
 
 }  // namespace
