@@ -65,14 +65,20 @@ ScalePyramid ScalePyramid::Create(int num_levels, double scale_factor) {
 }
 
 int DescriptorDistance(const uint8_t* a, const uint8_t* b) {
-  int dist = 0;
+  // SWAR popcount: the build does not assume the POPCNT instruction, and
+  // __builtin_popcountll would then call a slow libgcc routine.
+  uint64_t acc = 0;
   for (int i = 0; i < 4; ++i) {
     uint64_t x, y;
     std::memcpy(&x, a + 8 * i, 8);
     std::memcpy(&y, b + 8 * i, 8);
-    dist += __builtin_popcountll(x ^ y);
+    uint64_t v = x ^ y;
+    v = v - ((v >> 1) & 0x5555555555555555ULL);
+    v = (v & 0x3333333333333333ULL) + ((v >> 2) & 0x3333333333333333ULL);
+    v = (v + (v >> 4)) & 0x0f0f0f0f0f0f0f0fULL;
+    acc += v;  // per-byte counts (each <= 8, four words sum to <= 32 per byte)
   }
-  return dist;
+  return static_cast<int>((acc * 0x0101010101010101ULL) >> 56);
 }
 
 OrbExtractor::OrbExtractor(const OrbOptions& options)
@@ -121,6 +127,22 @@ OrbExtractor::OrbExtractor(const OrbOptions& options)
       sample(&t[2], &t[3]);
     } while (t[0] == t[2] && t[1] == t[3]);
   }
+  // The pattern steered to each orientation bin (the rotation keeps the
+  // points inside the disc, so inside the level's border).
+  rotated_pattern_.resize(kAngleBins);
+  for (int bin = 0; bin < kAngleBins; ++bin) {
+    const double a = 2.0 * M_PI * bin / kAngleBins;
+    const double c = std::cos(a), s = std::sin(a);
+    auto& rot = rotated_pattern_[bin];
+    rot.resize(pattern_.size());
+    for (size_t t = 0; t < pattern_.size(); ++t) {
+      for (int p = 0; p < 2; ++p) {
+        const double x = pattern_[t][2 * p], y = pattern_[t][2 * p + 1];
+        rot[t][2 * p] = static_cast<int8_t>(std::lround(x * c - y * s));
+        rot[t][2 * p + 1] = static_cast<int8_t>(std::lround(x * s + y * c));
+      }
+    }
+  }
 }
 
 void OrbExtractor::BuildPyramid(const cv::Mat& image, std::vector<cv::Mat>* levels) const {
@@ -162,25 +184,46 @@ void OrbExtractor::ExtractLevel(const cv::Mat& img,
                                 std::vector<cv::KeyPoint>* out) const {
   out->clear();
   if (target <= 0 || img.cols <= 2 * kEdge || img.rows <= 2 * kEdge) return;
-  std::vector<cv::KeyPoint> all;
+  // Strong corners over the whole level; the weak threshold only in cells
+  // where the strong one found nothing (FAST at the low threshold everywhere
+  // would cost several times more).
   const cv::Rect roi(kEdge - 3, kEdge - 3, img.cols - 2 * kEdge + 6, img.rows - 2 * kEdge + 6);
-  cv::FAST(img(roi), all, options_.min_fast_threshold, true);
-  // Per cell: keep strong corners if the cell has any, otherwise the weak ones.
+  std::vector<cv::KeyPoint> all;
+  cv::FAST(img(roi), all, options_.fast_threshold, true);
   const int gx = (roi.width + kCellSize - 1) / kCellSize;
   const int gy = (roi.height + kCellSize - 1) / kCellSize;
   std::vector<char> has_strong(gx * gy, 0);
   for (const cv::KeyPoint& kp : all) {
-    if (kp.response >= options_.fast_threshold) {
-      has_strong[static_cast<int>(kp.pt.y) / kCellSize * gx + static_cast<int>(kp.pt.x) / kCellSize] = 1;
+    has_strong[static_cast<int>(kp.pt.y) / kCellSize * gx + static_cast<int>(kp.pt.x) / kCellSize] = 1;
+  }
+  for (auto& kp : all) kp.pt += cv::Point2f(static_cast<float>(roi.x), static_cast<float>(roi.y));
+  if (options_.min_fast_threshold < options_.fast_threshold) {
+    std::vector<cv::KeyPoint> weak;
+    for (int cy = 0; cy < gy; ++cy) {
+      for (int cx = 0; cx < gx; ++cx) {
+        if (has_strong[cy * gx + cx]) continue;
+        // Cell plus the 3-pixel FAST margin, clipped to the level ROI.
+        const int x0 = roi.x + cx * kCellSize - 3, y0 = roi.y + cy * kCellSize - 3;
+        const int x1 = std::min(roi.x + roi.width, roi.x + (cx + 1) * kCellSize + 3);
+        const int y1 = std::min(roi.y + roi.height, roi.y + (cy + 1) * kCellSize + 3);
+        if (x1 - x0 < 8 || y1 - y0 < 8) continue;
+        const cv::Rect cell(std::max(x0, roi.x), std::max(y0, roi.y), 0, 0);
+        const cv::Rect r(cell.x, cell.y, x1 - cell.x, y1 - cell.y);
+        weak.clear();
+        cv::FAST(img(r), weak, options_.min_fast_threshold, true);
+        for (cv::KeyPoint kp : weak) {
+          kp.pt += cv::Point2f(static_cast<float>(r.x), static_cast<float>(r.y));
+          // Keep only corners of this cell (the margin belongs to neighbours).
+          const int kx = static_cast<int>(kp.pt.x) - roi.x, ky = static_cast<int>(kp.pt.y) - roi.y;
+          if (kx / kCellSize != cx || ky / kCellSize != cy) continue;
+          all.push_back(kp);
+        }
+      }
     }
   }
   std::vector<cv::KeyPoint> cand;
   cand.reserve(all.size());
   for (cv::KeyPoint kp : all) {
-    const int cell = static_cast<int>(kp.pt.y) / kCellSize * gx + static_cast<int>(kp.pt.x) / kCellSize;
-    if (has_strong[cell] && kp.response < options_.fast_threshold) continue;
-    kp.pt.x += roi.x;
-    kp.pt.y += roi.y;
     if (kp.pt.x < kEdge || kp.pt.y < kEdge || kp.pt.x >= img.cols - kEdge ||
         kp.pt.y >= img.rows - kEdge) {
       continue;
@@ -279,22 +322,23 @@ void OrbExtractor::ComputeDescriptors(const cv::Mat& blurred,
                                       const std::vector<cv::KeyPoint>& kps,
                                       uint8_t* out) const {
   const int step = static_cast<int>(blurred.step1());
+  std::vector<int> offsets(2 * pattern_.size());
   for (size_t k = 0; k < kps.size(); ++k) {
     const cv::KeyPoint& kp = kps[k];
-    const float a = kp.angle * static_cast<float>(M_PI / 180.0);
-    const float c = std::cos(a), s = std::sin(a);
+    int bin = static_cast<int>(std::lround(kp.angle * kAngleBins / 360.f));
+    if (bin >= kAngleBins) bin -= kAngleBins;
+    const auto& rotated = rotated_pattern_[bin];
+    for (size_t t = 0; t < pattern_.size(); ++t) {
+      offsets[2 * t] = rotated[t][1] * step + rotated[t][0];
+      offsets[2 * t + 1] = rotated[t][3] * step + rotated[t][2];
+    }
     const uint8_t* center = blurred.ptr<uint8_t>(cvRound(kp.pt.y)) + cvRound(kp.pt.x);
-    auto sample = [&](int x, int y) {
-      const int rx = cvRound(x * c - y * s);
-      const int ry = cvRound(x * s + y * c);
-      return center[ry * step + rx];
-    };
     uint8_t* d = out + k * kDescriptorBytes;
-    for (int b = 0; b < kDescriptorBytes; ++b) {
+    const int* o = offsets.data();
+    for (int b = 0; b < kDescriptorBytes; ++b, o += 16) {
       uint8_t byte = 0;
       for (int bit = 0; bit < 8; ++bit) {
-        const auto& t = pattern_[b * 8 + bit];
-        if (sample(t[0], t[1]) < sample(t[2], t[3])) byte |= static_cast<uint8_t>(1u << bit);
+        if (center[o[2 * bit]] < center[o[2 * bit + 1]]) byte |= static_cast<uint8_t>(1u << bit);
       }
       d[b] = byte;
     }

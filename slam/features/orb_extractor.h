@@ -87,6 +87,9 @@ class OrbExtractor {
   std::vector<int> umax_;  // half-widths of the circular orientation patch
   // 256 tests, each two points (x1, y1, x2, y2) within radius kPatternRadius.
   std::vector<std::array<int8_t, 4>> pattern_;
+  // pattern_ rotated by 360° * bin / kAngleBins (descriptor steering).
+  static constexpr int kAngleBins = 90;
+  std::vector<std::vector<std::array<int8_t, 4>>> rotated_pattern_;
 };
 
 // Hamming distance of two 32-byte descriptors.

@@ -438,6 +438,8 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
           k->camera_from_world.ToParams(poses[oid].data());
           fixed.insert(oid);
         }
+        // Observations behind the camera cannot be evaluated: left out.
+        if ((k->camera_from_world * pos).z() <= 1e-3) continue;
         const cv::KeyPoint& kp = k->features->keypoints[idx];
         obs.push_back({oid, pid, idx, Eigen::Vector3d(kp.pt.x, kp.pt.y, k->features->u_right[idx]),
                        kp.octave});

@@ -87,14 +87,22 @@ TrackingState CameraTracker::Track(map::Frame* frame, map::Map* map) {
   frame->ResetMatches();
   bool ok = false;
   bool relocalized = false;
+  TrackingPath path = TrackingPath::kNone;
   if (state_ == TrackingState::kOk || state_ == TrackingState::kRelocalized) {
     UpdateLastFrame(map);
-    if (velocity_.has_value()) ok = TrackWithMotionModel(frame, map);
-    if (!ok) ok = TrackReferenceKeyFrame(frame, map);
+    if (velocity_.has_value()) {
+      ok = TrackWithMotionModel(frame, map);
+      path = TrackingPath::kMotionModel;
+    }
+    if (!ok) {
+      ok = TrackReferenceKeyFrame(frame, map);
+      path = TrackingPath::kReferenceKeyFrame;
+    }
   } else {
     frame->camera_from_world = last_frame_.camera_from_world;
     ok = Relocalize(frame, map);
     relocalized = ok;
+    path = TrackingPath::kRelocalization;
   }
   const bool recent_reloc = frame->id - last_reloc_frame_id_ < options_.recent_relocalization_frames;
   if (ok) ok = TrackLocalMap(frame, map, relocalized || recent_reloc);
@@ -113,6 +121,10 @@ TrackingState CameraTracker::Track(map::Frame* frame, map::Map* map) {
   frame->camera_from_world = map::CanonicalPose(frame->camera_from_world);
   if (velocity_.has_value()) velocity_ = map::CanonicalPose(*velocity_);
   ComputeStats(*frame);
+  stats_.path = path;
+  VLOG(1) << "frame " << frame->id << " path " << static_cast<int>(path) << " ok " << ok
+          << " inliers " << stats_.num_inliers << " close tracked " << stats_.num_tracked_close
+          << " untracked " << stats_.num_untracked_close;
   // The next frame only keeps inlier map points; temporary points are rebuilt.
   for (int i = 0; i < static_cast<int>(frame->matched.size()); ++i) {
     if (frame->matched[i] && (frame->outlier[i] || frame->point_ids[i] < 0)) frame->ClearMatch(i);
@@ -299,6 +311,7 @@ bool CameraTracker::TrackWithMotionModel(map::Frame* frame, map::Map* map) {
     frame->ResetMatches();
     n = SearchLastFrame(frame, last_frame_, 2.f * options_.motion_search_radius);
   }
+  VLOG(2) << "motion model matches " << n;
   if (n < 20) return false;
   Optimize(frame);
   int map_inliers = 0;
@@ -318,13 +331,41 @@ bool CameraTracker::TrackReferenceKeyFrame(map::Frame* frame, map::Map* map) {
   if (ref == nullptr) return false;
   frame->ResetMatches();
   frame->camera_from_world = last_frame_.camera_from_world;
-  int n = SearchKeyFramePoints(frame, *ref, *map, static_cast<float>(options_.reference_search_radius),
-                               kThresholdHigh);
-  if (n < 15) {
-    frame->ResetMatches();
-    n = SearchKeyFramePoints(frame, *ref, *map, 3.f * options_.reference_search_radius,
-                             kThresholdHigh);
+  // No usable motion prior: match the reference keyframe's points by
+  // descriptor only (ratio + orientation tests), as ORB-SLAM2 does with its
+  // vocabulary, then optimise from the last pose.
+  const auto& f = *frame->features;
+  std::vector<int> query_index;
+  for (int i = 0; i < f.size(); ++i) {
+    if (f.is_static[i]) query_index.push_back(i);
   }
+  std::vector<int64_t> pids;
+  std::vector<int> kps;
+  for (int i = 0; i < ref->features->size(); ++i) {
+    const map::MapPoint* p = map->GoodPoint(ref->point_ids[i]);
+    if (p == nullptr) continue;
+    pids.push_back(p->id);
+    kps.push_back(i);
+  }
+  if (pids.size() < 15 || query_index.size() < 15) return false;
+  cv::Mat query(static_cast<int>(query_index.size()), 32, CV_8UC1);
+  for (size_t k = 0; k < query_index.size(); ++k) {
+    std::memcpy(query.ptr<uint8_t>(static_cast<int>(k)), f.descriptor(query_index[k]), 32);
+  }
+  cv::Mat train(static_cast<int>(pids.size()), 32, CV_8UC1);
+  for (size_t k = 0; k < pids.size(); ++k) {
+    std::memcpy(train.ptr<uint8_t>(static_cast<int>(k)), map->point(pids[k])->descriptor.data(), 32);
+  }
+  const auto m = features::MatchRatio(query, train, 0.75f, kThresholdHigh);
+  features::OrientationFilter rot;
+  for (size_t k = 0; k < m.size(); ++k) {
+    const int i = query_index[m[k].first];
+    frame->SetMatch(i, pids[m[k].second], map->point(pids[m[k].second])->p_in_world);
+    rot.Add(ref->features->keypoints[kps[m[k].second]].angle, f.keypoints[i].angle, i);
+  }
+  for (int j : rot.Rejected()) frame->ClearMatch(j);
+  int n = 0;
+  for (uint8_t x : frame->matched) n += x;
   if (n < 15) return false;
   Optimize(frame);
   int inliers = 0;

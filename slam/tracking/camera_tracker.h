@@ -38,8 +38,11 @@ struct TrackerOptions {
   PoseOptimizerOptions pose;
 };
 
-// Statistics the keyframe policy needs.
+enum class TrackingPath { kNone = 0, kMotionModel, kReferenceKeyFrame, kRelocalization };
+
+// Statistics the keyframe policy needs (and diagnostics).
 struct TrackingStats {
+  TrackingPath path = TrackingPath::kNone;  // how the first pose was found
   int num_inliers = 0;          // matched map points that are inliers
   int num_tracked_close = 0;    // close stereo keypoints with an inlier map point
   int num_untracked_close = 0;  // close stereo keypoints without
