@@ -1,0 +1,181 @@
+#include <random>
+#include <set>
+
+#include <gtest/gtest.h>
+
+#include "slam/mapping/local_mapper.h"
+#include "tests/slam/tracking/synthetic_features.h"
+
+namespace twist::mapping {
+namespace {
+
+using testing::MakeWorld;
+using testing::Observe;
+using testing::TestCamera;
+using testing::TruePose;
+
+class MapperTest : public ::testing::Test {
+ protected:
+  MapperTest()
+      : cam_(TestCamera()),
+        pyramid_(features::ScalePyramid::Create(8, 1.2)),
+        world_(MakeWorld(2500, 3)),
+        map_(cam_, pyramid_),
+        mapper_(cam_, pyramid_, MapperOptions{}) {}
+
+  // A keyframe at frame k, its keypoints matched to the points of previous
+  // keyframes through the ground-truth identities (as tracking would).
+  map::KeyFrame* AddKeyFrame(int k, std::map<int, int64_t>* world_to_point) {
+    map::Frame f;
+    f.id = k;
+    f.timestamp_ns = k;
+    testing::FrameTruth truth;
+    f.features = Observe(world_, cam_, pyramid_, TruePose(k).Inverse(), 50 + k, 0.3, &truth);
+    f.camera_from_world = TruePose(k).Inverse();
+    f.ResetMatches();
+    {
+      std::lock_guard<std::mutex> lock(map_.mutex());
+      for (size_t i = 0; i < truth.point_index.size(); ++i) {
+        auto it = world_to_point->find(truth.point_index[i]);
+        if (it == world_to_point->end()) continue;
+        const map::MapPoint* p = map_.GoodPoint(it->second);
+        if (p != nullptr) f.SetMatch(static_cast<int>(i), p->id, p->p_in_world);
+      }
+    }
+    map::KeyFrame* kf = mapper_.CreateKeyFrame(f, &map_, k == 0);
+    std::lock_guard<std::mutex> lock(map_.mutex());
+    for (size_t i = 0; i < truth.point_index.size(); ++i) {
+      if (kf->point_ids[i] >= 0) world_to_point->emplace(truth.point_index[i], kf->point_ids[i]);
+    }
+    truth_[kf->id] = truth;
+    return kf;
+  }
+
+  double MeanPointError(const std::map<int, int64_t>& world_to_point) {
+    double sum = 0;
+    int n = 0;
+    for (const auto& [wi, pid] : world_to_point) {
+      const map::MapPoint* p = map_.GoodPoint(pid);
+      if (p == nullptr) continue;
+      sum += (p->p_in_world - world_.points[wi]).norm();
+      ++n;
+    }
+    return n ? sum / n : 0.0;
+  }
+
+  geometry::StereoCamera cam_;
+  features::ScalePyramid pyramid_;
+  testing::FeatureWorld world_;
+  map::Map map_;
+  LocalMapper mapper_;
+  std::map<int64_t, testing::FrameTruth> truth_;
+};
+
+TEST_F(MapperTest, LocalBundleAdjustmentReducesPoseAndPointErrors) {
+  std::map<int, int64_t> w2p;
+  std::vector<int64_t> kfs;
+  for (int k = 0; k < 5; ++k) kfs.push_back(AddKeyFrame(k, &w2p)->id);
+  // Perturb every keyframe but the first, and every point.
+  std::mt19937 rng(4);
+  std::normal_distribution<double> n(0.0, 1.0);
+  {
+    std::lock_guard<std::mutex> lock(map_.mutex());
+    for (size_t i = 1; i < kfs.size(); ++i) {
+      Eigen::Matrix<double, 6, 1> d;
+      d << 0.05 * n(rng), 0.05 * n(rng), 0.05 * n(rng), 0.003 * n(rng), 0.003 * n(rng), 0.003 * n(rng);
+      map::KeyFrame* kf = map_.keyframe(kfs[i]);
+      kf->camera_from_world = geometry::SE3d::Exp(d) * kf->camera_from_world;
+    }
+    for (const auto& [id, p] : map_.points()) p->p_in_world += 0.05 * Eigen::Vector3d(n(rng), n(rng), n(rng));
+    for (int64_t id : kfs) map_.UpdateConnections(map_.keyframe(id));
+  }
+  auto pose_error = [&]() {
+    double e = 0;
+    for (size_t i = 1; i < kfs.size(); ++i) {
+      e += testing::TranslationError(map_.keyframe(kfs[i])->camera_from_world.Inverse(),
+                                     TruePose(static_cast<int>(i)));
+    }
+    return e / (kfs.size() - 1);
+  };
+  const double pose_before = pose_error();
+  const double point_before = MeanPointError(w2p);
+  MappingTimings t;
+  const int optimised = mapper_.LocalBundleAdjustment(kfs.back(), &map_, nullptr, &t);
+  EXPECT_EQ(optimised, 4);
+  EXPECT_GT(t.ba_points, 500);
+  const double pose_after = pose_error();
+  const double point_after = MeanPointError(w2p);
+  EXPECT_LT(pose_after, 0.2 * pose_before) << pose_before << " -> " << pose_after;
+  EXPECT_LT(pose_after, 0.01);
+  EXPECT_LT(point_after, 0.5 * point_before) << point_before << " -> " << point_after;
+}
+
+TEST_F(MapperTest, TriangulatesFarPointsBetweenKeyFrames) {
+  std::map<int, int64_t> w2p;
+  AddKeyFrame(0, &w2p);
+  map::KeyFrame* kf = AddKeyFrame(2, &w2p);
+  std::set<int64_t> before;
+  {
+    std::lock_guard<std::mutex> lock(map_.mutex());
+    for (const auto& [id, p] : map_.points()) before.insert(id);
+  }
+  const MappingTimings t = mapper_.ProcessKeyFrame(kf->id, &map_);
+  EXPECT_GT(t.new_points, 20);
+  // The new points (two-view triangulations) lie near true world points.
+  std::lock_guard<std::mutex> lock(map_.mutex());
+  std::vector<double> rel;
+  int far = 0;
+  for (const auto& [id, p] : map_.points()) {
+    if (before.count(id)) continue;
+    double best = 1e9;
+    for (const auto& w : world_.points) best = std::min(best, (w - p->p_in_world).norm());
+    rel.push_back(best / p->p_in_world.z());
+    if (p->p_in_world.z() > 30.0) ++far;
+  }
+  ASSERT_GT(rel.size(), 20u);
+  EXPECT_GT(far, 10);  // beyond the synthetic stereo range (30 m)
+  std::sort(rel.begin(), rel.end());
+  EXPECT_LT(rel[rel.size() / 2], 0.03);
+  EXPECT_LT(rel[rel.size() * 9 / 10], 0.08);
+}
+
+TEST(KeyFramePolicy, FollowsTheTrackingQuality) {
+  KeyFrameDecisionInput in;
+  in.frame_id = 5;
+  in.last_keyframe_frame_id = 4;
+  in.num_keyframes = 5;
+  in.reference_tracked_points = 400;
+  in.num_inliers = 390;  // tracking well, close points tracked
+  in.num_tracked_close = 150;
+  in.num_untracked_close = 50;
+  EXPECT_FALSE(NeedNewKeyFrame(in));
+  in.num_inliers = 250;  // below 75% of the reference
+  EXPECT_TRUE(NeedNewKeyFrame(in));
+  in.num_inliers = 390;
+  in.num_tracked_close = 60;  // few close points tracked, many available
+  in.num_untracked_close = 200;
+  EXPECT_TRUE(NeedNewKeyFrame(in));
+  in.num_inliers = 10;  // too weak to make a keyframe
+  EXPECT_FALSE(NeedNewKeyFrame(in));
+  in.num_inliers = 250;
+  in.mapper_idle = false;
+  in.mapper_queue = 3;  // busy mapper with a queue
+  EXPECT_FALSE(NeedNewKeyFrame(in));
+}
+
+TEST_F(MapperTest, BackgroundThreadProcessesTheQueue) {
+  std::map<int, int64_t> w2p;
+  AddKeyFrame(0, &w2p);
+  MappingThread thread(&mapper_, &map_);
+  for (int k = 1; k <= 3; ++k) thread.Enqueue(AddKeyFrame(2 * k, &w2p)->id);
+  thread.WaitIdle();
+  EXPECT_TRUE(thread.idle());
+  EXPECT_EQ(thread.TakeTimings().size(), 3u);
+  thread.Shutdown();
+  thread.Shutdown();  // idempotent
+  std::lock_guard<std::mutex> lock(map_.mutex());
+  EXPECT_GE(map_.NumGoodKeyFrames(), 2);
+}
+
+}  // namespace
+}  // namespace twist::mapping
