@@ -69,6 +69,16 @@ bool InsideDetection(const ObjectDetectionInput& det, const Eigen::Vector2d& uv,
          uv.x() <= det.box.x + det.box.width + margin && uv.y() <= det.box.y + det.box.height + margin;
 }
 
+// Reference patch for the NCC search; none on untextured areas, where the
+// correlation is meaningless.
+cv::Mat TexturedPatch(const cv::Mat& image, const Eigen::Vector2d& uv, int half_size) {
+  cv::Mat patch = ExtractPatch(image, uv, half_size);
+  if (patch.empty()) return patch;
+  cv::Scalar mean, stddev;
+  cv::meanStdDev(patch, mean, stddev);
+  return stddev[0] >= 2.0 ? patch : cv::Mat();
+}
+
 double Median(std::vector<double> v) {
   if (v.empty()) return 0.0;
   std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
@@ -178,7 +188,7 @@ void ObjectTracker::AddNewPoints(const FrameContext& ctx,
     p.id = o->next_point_id++;
     p.point_in_object = object_from_camera * *p_c;
     if (!kps.descriptors.empty()) p.descriptor = kps.descriptors.row(static_cast<int>(k)).clone();
-    p.patch = ExtractPatch(ctx.frame.left, kps.uv[k], options_.search.patch_half_size);
+    p.patch = TexturedPatch(ctx.frame.left, kps.uv[k], options_.search.patch_half_size);
     p.last_uv = kps.uv[k];
     p.seen_last_frame = true;
     p.num_observations = 1;
@@ -228,7 +238,7 @@ bool ObjectTracker::Create(const FrameContext& ctx, const ObjectDetectionInput& 
     p.id = o->next_point_id++;
     p.point_in_object = object_from_world * p_world[m];
     if (!kps.descriptors.empty()) p.descriptor = kps.descriptors.row(static_cast<int>(k)).clone();
-    p.patch = ExtractPatch(ctx.frame.left, kps.uv[k], options_.search.patch_half_size);
+    p.patch = TexturedPatch(ctx.frame.left, kps.uv[k], options_.search.patch_half_size);
     p.last_uv = kps.uv[k];
     p.seen_last_frame = true;
     p.num_observations = 1;

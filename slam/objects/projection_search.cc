@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <unordered_map>
 #include <limits>
 
 #include <glog/logging.h>
@@ -11,7 +13,20 @@
 namespace twist::objects {
 
 int HammingDistance(const cv::Mat& a, const cv::Mat& b) {
-  return static_cast<int>(cv::norm(a, b, cv::NORM_HAMMING));
+  DCHECK_EQ(a.cols, b.cols);
+  const uint8_t* pa = a.ptr<uint8_t>(0);
+  const uint8_t* pb = b.ptr<uint8_t>(0);
+  const int n = a.cols * static_cast<int>(a.elemSize());
+  int d = 0;
+  int k = 0;
+  for (; k + 8 <= n; k += 8) {
+    uint64_t x, y;
+    std::memcpy(&x, pa + k, 8);
+    std::memcpy(&y, pb + k, 8);
+    d += __builtin_popcountll(x ^ y);
+  }
+  for (; k < n; ++k) d += __builtin_popcount(static_cast<unsigned>(pa[k] ^ pb[k]));
+  return d;
 }
 
 std::vector<int> SearchByProjection(const geometry::StereoCamera& camera,
@@ -27,6 +42,14 @@ std::vector<int> SearchByProjection(const geometry::StereoCamera& camera,
   std::vector<int> match(n, -1);
   const int num_kp = static_cast<int>(keypoints.uv.size());
   if (num_kp == 0 || keypoints.descriptors.rows != num_kp) return match;
+  // Bucket the keypoints on a grid of radius-sized cells.
+  const double cell = std::max(4.0, options.radius_px);
+  std::unordered_map<int64_t, std::vector<int>> grid;
+  auto pack = [](int x, int y) { return (static_cast<int64_t>(x) << 32) ^ static_cast<int64_t>(static_cast<uint32_t>(y)); };
+  for (int i = 0; i < num_kp; ++i) {
+    const Eigen::Vector2d& q = keypoints.uv[static_cast<size_t>(i)];
+    grid[pack(static_cast<int>(std::floor(q.x() / cell)), static_cast<int>(std::floor(q.y() / cell)))].push_back(i);
+  }
   std::vector<int> owner(static_cast<size_t>(num_kp), -1);
   std::vector<int> owner_dist(static_cast<size_t>(num_kp), std::numeric_limits<int>::max());
   const double r2 = options.radius_px * options.radius_px;
@@ -36,15 +59,23 @@ std::vector<int> SearchByProjection(const geometry::StereoCamera& camera,
     if (!camera.ProjectChecked(camera_from_object * points_in_object[k], &uv, nullptr, 0.1)) continue;
     if (!camera.InImage(uv)) continue;
     int best = -1, best_d = std::numeric_limits<int>::max(), second_d = std::numeric_limits<int>::max();
-    for (int i = 0; i < num_kp; ++i) {
-      if ((keypoints.uv[static_cast<size_t>(i)] - uv).squaredNorm() > r2) continue;
-      const int d = HammingDistance(descriptors[k], keypoints.descriptors.row(i));
-      if (d < best_d) {
-        second_d = best_d;
-        best_d = d;
-        best = i;
-      } else if (d < second_d) {
-        second_d = d;
+    const int gx = static_cast<int>(std::floor(uv.x() / cell));
+    const int gy = static_cast<int>(std::floor(uv.y() / cell));
+    for (int dy = -1; dy <= 1; ++dy) {
+      for (int dx = -1; dx <= 1; ++dx) {
+        auto it = grid.find(pack(gx + dx, gy + dy));
+        if (it == grid.end()) continue;
+        for (int i : it->second) {
+          if ((keypoints.uv[static_cast<size_t>(i)] - uv).squaredNorm() > r2) continue;
+          const int d = HammingDistance(descriptors[k], keypoints.descriptors.row(i));
+          if (d < best_d) {
+            second_d = best_d;
+            best_d = d;
+            best = i;
+          } else if (d < second_d) {
+            second_d = d;
+          }
+        }
       }
     }
     if (best < 0 || best_d > options.max_hamming) continue;

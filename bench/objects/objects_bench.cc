@@ -1,0 +1,264 @@
+// Object tracking and dynamic bundle adjustment timings on synthetic cars
+// (tests/slam/objects/car_sequence.h: planar cars on a road, 60 points each,
+// 0.5 px keypoint noise, the client's dense flow).
+//
+// For 1 and 5 simultaneous cars it runs the object tracker over --frames
+// frames and, every frame once the window is full, a dynamic BA over the last
+// --window frames (camera poses free except the oldest, 300 static points,
+// every tracked car), then prints median and p95 of
+//   - tracking time per object (ObjectTracker::Process / number of objects),
+//   - tracking time per frame,
+//   - dynamic BA time (solve only, and build + solve),
+// plus the sparse Lucas–Kanade time for 60 points on a textured 1241x376
+// image, and one JSON document (stdout, or --json FILE).
+//
+//   objects_bench [--frames N] [--window W] [--ba-iterations K] [--json FILE]
+#include <time.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <opencv2/imgproc.hpp>
+
+#include "slam/common/timer.h"
+#include "slam/objects/dynamic_ba.h"
+#include "slam/objects/flow_association.h"
+#include "slam/objects/object_ba.h"
+#include "slam/objects/object_tracker.h"
+#include "tests/slam/objects/car_sequence.h"
+
+namespace {
+
+using twist::geometry::SE3d;
+using namespace twist::objects;           // NOLINT
+using namespace twist::objects::testing;  // NOLINT
+
+// CPU time of the calling thread (the machine may be shared: wall time alone
+// over-states the cost under contention).
+double ThreadCpuMs() {
+  timespec ts;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+}
+
+double Percentile(std::vector<double> v, double p) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  const size_t i = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size() - 1) + 0.5));
+  return v[i];
+}
+
+std::string Stats(const std::vector<double>& v) {
+  std::ostringstream s;
+  s << "{\"median\": " << Percentile(v, 0.5) << ", \"p95\": " << Percentile(v, 0.95) << ", \"n\": " << v.size()
+    << "}";
+  return s.str();
+}
+
+// Merges the frames of several car sequences (same camera motion).
+ObjectFrameInput Merge(std::vector<ObjectFrameInput> frames) {
+  ObjectFrameInput out = frames[0];
+  for (size_t k = 1; k < frames.size(); ++k) {
+    const ObjectFrameInput& f = frames[k];
+    out.keypoints.uv.insert(out.keypoints.uv.end(), f.keypoints.uv.begin(), f.keypoints.uv.end());
+    out.keypoints.u_right.insert(out.keypoints.u_right.end(), f.keypoints.u_right.begin(), f.keypoints.u_right.end());
+    out.keypoints.descriptors.push_back(f.keypoints.descriptors);
+    out.detections.insert(out.detections.end(), f.detections.begin(), f.detections.end());
+    for (int y = 0; y < f.flow.rows; ++y) {
+      for (int x = 0; x < f.flow.cols; ++x) {
+        const cv::Vec2f v = f.flow.at<cv::Vec2f>(y, x);
+        if (v[0] != 0.0f || v[1] != 0.0f) out.flow.at<cv::Vec2f>(y, x) = v;
+      }
+    }
+  }
+  return out;
+}
+
+struct RunResult {
+  std::vector<double> track_ms_per_object, track_ms_per_frame, ba_solve_ms, ba_total_ms;
+  std::vector<double> track_cpu_ms_per_object, ba_solve_cpu_ms;
+  int ba_terms_static = 0, ba_terms_dynamic = 0, ba_terms_cv = 0;
+};
+
+RunResult Run(int num_cars, int frames, int window, int ba_iterations) {
+  std::vector<CarSequence> cars;
+  const double lateral[5] = {3.0, -3.0, 6.5, -6.5, 0.0};
+  for (int c = 0; c < num_cars; ++c) cars.emplace_back(0.5, 100 + static_cast<uint64_t>(c), lateral[c], 60);
+  ObjectTracker tracker(cars[0].camera(), ObjectTrackerOptions{});
+  // Static street points for the BA.
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> uz(8.0, 60.0), uy(-4.0, 1.6), ux(-7.0, 7.0);
+  std::normal_distribution<double> noise(0.0, 0.5);
+  std::vector<Eigen::Vector3d> street;
+  for (int j = 0; j < 300; ++j) {
+    street.push_back(j % 3 == 0 ? Eigen::Vector3d(ux(rng), 1.65, uz(rng))
+                                : Eigen::Vector3d(j % 3 == 1 ? -9.0 : 9.0, uy(rng), uz(rng)));
+  }
+  std::vector<ObjectFrameInput> history;
+  RunResult r;
+  for (int i = 0; i < frames; ++i) {
+    std::vector<ObjectFrameInput> parts;
+    for (int c = 0; c < num_cars; ++c) parts.push_back(cars[static_cast<size_t>(c)].Next(c + 1, true));
+    ObjectFrameInput frame = Merge(std::move(parts));
+    twist::Stopwatch sw;
+    const double cpu0 = ThreadCpuMs();
+    const auto results = tracker.Process(frame);
+    const double ms = sw.ElapsedMs();
+    const double cpu_ms = ThreadCpuMs() - cpu0;
+    if (!results.ok()) {
+      std::fprintf(stderr, "tracking failed: %s\n", std::string(results.status().message()).c_str());
+      std::exit(1);
+    }
+    if (i > 0) {
+      r.track_ms_per_frame.push_back(ms);
+      r.track_ms_per_object.push_back(ms / num_cars);
+      r.track_cpu_ms_per_object.push_back(cpu_ms / num_cars);
+    }
+    frame.flow = cv::Mat();  // keep the history light
+    frame.left = cv::Mat();
+    history.push_back(std::move(frame));
+    if (static_cast<int>(history.size()) < window) continue;
+    // Dynamic BA over the last `window` frames.
+    twist::Stopwatch total;
+    DynamicBaProblem problem;
+    problem.camera = cars[0].camera();
+    std::map<int64_t, int> keyframe_of_frame;
+    const size_t first = history.size() - static_cast<size_t>(window);
+    for (size_t k = first; k < history.size(); ++k) {
+      BaKeyframe kf;
+      kf.id = history[k].frame_index;
+      kf.timestamp_ns = history[k].timestamp_ns;
+      kf.camera_from_world = history[k].camera_from_world;
+      kf.fixed = k == first;
+      keyframe_of_frame[history[k].frame_index] = static_cast<int>(problem.keyframes.size());
+      problem.keyframes.push_back(kf);
+    }
+    for (size_t j = 0; j < street.size(); ++j) {
+      BaStaticPoint sp;
+      sp.id = static_cast<int64_t>(j);
+      sp.point_in_world = street[j];
+      problem.points.push_back(sp);
+      for (size_t k = 0; k < problem.keyframes.size(); ++k) {
+        Eigen::Vector3d uvr;
+        if (!problem.camera.ProjectStereoChecked(problem.keyframes[k].camera_from_world * street[j], &uvr, nullptr, 1.0) ||
+            !problem.camera.InImage(uvr.head<2>(), 5) || uvr.z() < 0) {
+          continue;
+        }
+        BaObservation o;
+        o.keyframe = static_cast<int>(k);
+        o.point = static_cast<int>(j);
+        o.uv = uvr.head<2>() + Eigen::Vector2d(noise(rng), noise(rng));
+        o.u_right = uvr.z() + noise(rng);
+        problem.observations.push_back(o);
+      }
+    }
+    const auto links = AddTrackedObjectsToBa(tracker, keyframe_of_frame, ObjectBaOptions{}, &problem);
+    DynamicBaOptions options;
+    options.max_iterations = ba_iterations;
+    twist::Stopwatch solve;
+    const double solve_cpu0 = ThreadCpuMs();
+    const auto summary = SolveDynamicBa(&problem, options);
+    const double solve_ms = solve.ElapsedMs();
+    r.ba_solve_cpu_ms.push_back(ThreadCpuMs() - solve_cpu0);
+    if (!summary.ok()) {
+      std::fprintf(stderr, "BA failed: %s\n", std::string(summary.status().message()).c_str());
+      std::exit(1);
+    }
+    ApplyBaToTrackedObjects(problem, links, &tracker);
+    r.ba_solve_ms.push_back(solve_ms);
+    r.ba_total_ms.push_back(total.ElapsedMs());
+    r.ba_terms_static = summary->num_static_terms;
+    r.ba_terms_dynamic = summary->num_dynamic_terms;
+    r.ba_terms_cv = summary->num_const_velocity_terms;
+  }
+  return r;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int frames = 40;
+  int window = 10;
+  int ba_iterations = 5;
+  std::string json_path;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    const bool has_value = i + 1 < argc;
+    if (a == "--frames" && has_value) {
+      frames = std::atoi(argv[++i]);
+    } else if (a == "--window" && has_value) {
+      window = std::atoi(argv[++i]);
+    } else if (a == "--ba-iterations" && has_value) {
+      ba_iterations = std::atoi(argv[++i]);
+    } else if (a == "--json" && has_value) {
+      json_path = argv[++i];
+    } else {
+      std::fprintf(stderr, "usage: objects_bench [--frames N] [--window W] [--ba-iterations K] [--json FILE]\n");
+      return 2;
+    }
+  }
+  if (frames < 2 || window < 3 || window > frames || ba_iterations < 1) {
+    std::fprintf(stderr, "objects_bench: need frames >= 2, 3 <= window <= frames, ba-iterations >= 1\n");
+    return 2;
+  }
+  std::ostringstream json;
+  json << "{\"frames\": " << frames << ", \"window\": " << window << ", \"ba_iterations\": " << ba_iterations;
+  for (int cars : {1, 5}) {
+    const RunResult r = Run(cars, frames, window, ba_iterations);
+    std::printf("%d object(s): tracking %.2f ms/object (p95 %.2f; CPU %.2f, p95 %.2f), %.2f ms/frame (p95 %.2f); "
+                "dynamic BA solve %.1f ms (p95 %.1f; CPU %.1f, p95 %.1f), build+solve %.1f ms (p95 %.1f) "
+                "[%d static, %d dynamic, %d const-velocity terms]\n",
+                cars, Percentile(r.track_ms_per_object, 0.5), Percentile(r.track_ms_per_object, 0.95),
+                Percentile(r.track_cpu_ms_per_object, 0.5), Percentile(r.track_cpu_ms_per_object, 0.95),
+                Percentile(r.track_ms_per_frame, 0.5), Percentile(r.track_ms_per_frame, 0.95),
+                Percentile(r.ba_solve_ms, 0.5), Percentile(r.ba_solve_ms, 0.95), Percentile(r.ba_solve_cpu_ms, 0.5),
+                Percentile(r.ba_solve_cpu_ms, 0.95), Percentile(r.ba_total_ms, 0.5),
+                Percentile(r.ba_total_ms, 0.95), r.ba_terms_static, r.ba_terms_dynamic, r.ba_terms_cv);
+    json << ", \"objects_" << cars << "\": {\"track_ms_per_object\": " << Stats(r.track_ms_per_object)
+         << ", \"track_cpu_ms_per_object\": " << Stats(r.track_cpu_ms_per_object)
+         << ", \"track_ms_per_frame\": " << Stats(r.track_ms_per_frame) << ", \"ba_solve_ms\": " << Stats(r.ba_solve_ms)
+         << ", \"ba_solve_cpu_ms\": " << Stats(r.ba_solve_cpu_ms)
+         << ", \"ba_build_solve_ms\": " << Stats(r.ba_total_ms) << ", \"ba_static_terms\": " << r.ba_terms_static
+         << ", \"ba_dynamic_terms\": " << r.ba_terms_dynamic << ", \"ba_const_velocity_terms\": " << r.ba_terms_cv
+         << "}";
+  }
+  // Sparse LK on a textured image: 60 points, like one car without client flow.
+  {
+    std::mt19937_64 rng(3);
+    std::uniform_int_distribution<int> u(0, 255);
+    cv::Mat img(376, 1241, CV_8UC1);
+    for (int y = 0; y < img.rows; ++y) {
+      for (int x = 0; x < img.cols; ++x) img.at<uint8_t>(y, x) = static_cast<uint8_t>(u(rng));
+    }
+    cv::GaussianBlur(img, img, cv::Size(0, 0), 1.5);
+    cv::Mat next;
+    const cv::Mat m = (cv::Mat_<double>(2, 3) << 1, 0, 4.3, 0, 1, -1.7);
+    cv::warpAffine(img, next, m, img.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+    std::vector<Eigen::Vector2d> pts;
+    std::uniform_real_distribution<double> px(100, 1100), py(50, 320);
+    for (int k = 0; k < 60; ++k) pts.emplace_back(px(rng), py(rng));
+    std::vector<double> lk;
+    for (int rep = 0; rep < 30; ++rep) {
+      twist::Stopwatch sw;
+      const auto t = TrackSparseFlow(img, next, pts, SparseFlowOptions{});
+      lk.push_back(sw.ElapsedMs());
+      if (!t.ok()) return 1;
+    }
+    std::printf("sparse LK (forward-backward), 60 points, 1241x376: %.2f ms (p95 %.2f)\n", Percentile(lk, 0.5),
+                Percentile(lk, 0.95));
+    json << ", \"sparse_flow_60_points_ms\": " << Stats(lk);
+  }
+  json << "}\n";
+  if (json_path.empty()) {
+    std::printf("%s", json.str().c_str());
+  } else {
+    std::ofstream(json_path) << json.str();
+  }
+  return 0;
+}
