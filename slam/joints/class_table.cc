@@ -2,8 +2,8 @@
 
 #include <cmath>
 #include <set>
-#include <string_view>
 #include <sstream>
+#include <string_view>
 #include <utility>
 
 #include "absl/strings/ascii.h"
@@ -16,7 +16,9 @@
 namespace twist::joints {
 namespace {
 
-std::string Describe(const ClassInfo& c) { return absl::StrCat("class '", c.name, "' (id ", c.id, ")"); }
+std::string Describe(const ClassInfo& c) {
+  return absl::StrCat("class '", c.name, "' (id ", c.id, ")");
+}
 
 bool IsValidName(absl::string_view name) {
   if (name.empty()) return false;
@@ -42,15 +44,23 @@ absl::Status ValidateClasses(const std::vector<ClassInfo>& classes, size_t* bad_
     if (c.id < 0) return absl::InvalidArgumentError(absl::StrCat(Describe(c), ": id must be >= 0"));
     if (!IsValidName(c.name)) {
       return absl::InvalidArgumentError(
-          absl::StrCat("class id ", c.id, ": invalid name '", c.name,
+          absl::StrCat("class id ",
+                       c.id,
+                       ": invalid name '",
+                       c.name,
                        "' (letters, digits, '_' or '-', not only digits)"));
     }
     if (!by_id.emplace(c.id, i).second) {
-      return absl::InvalidArgumentError(absl::StrCat(Describe(c), ": duplicate id ", c.id, " (also used by '",
-                                                     classes[by_id[c.id]].name, "')"));
+      return absl::InvalidArgumentError(absl::StrCat(Describe(c),
+                                                     ": duplicate id ",
+                                                     c.id,
+                                                     " (also used by '",
+                                                     classes[by_id[c.id]].name,
+                                                     "')"));
     }
     if (!by_name.emplace(c.name, i).second) {
-      return absl::InvalidArgumentError(absl::StrCat(Describe(c), ": duplicate name '", c.name, "'"));
+      return absl::InvalidArgumentError(
+          absl::StrCat(Describe(c), ": duplicate name '", c.name, "'"));
     }
   }
   for (size_t i = 0; i < classes.size(); ++i) {
@@ -58,14 +68,16 @@ absl::Status ValidateClasses(const std::vector<ClassInfo>& classes, size_t* bad_
     *bad_index = i;
     const int type_index = static_cast<int>(c.joint);
     if (type_index < 0 || type_index >= kNumJointTypes) {
-      return absl::InvalidArgumentError(absl::StrCat(Describe(c), ": invalid joint type ", type_index));
+      return absl::InvalidArgumentError(
+          absl::StrCat(Describe(c), ": invalid joint type ", type_index));
     }
     if (!std::isfinite(c.pitch)) {
       return absl::InvalidArgumentError(absl::StrCat(Describe(c), ": pitch must be finite"));
     }
     if (c.parent_id == -1) continue;
     if (by_id.find(c.parent_id) == by_id.end()) {
-      return absl::InvalidArgumentError(absl::StrCat(Describe(c), ": unknown parent id ", c.parent_id));
+      return absl::InvalidArgumentError(
+          absl::StrCat(Describe(c), ": unknown parent id ", c.parent_id));
     }
     // Cycle: follow the parent chain; it must end within classes.size() steps.
     std::set<int> seen = {c.id};
@@ -86,11 +98,13 @@ absl::Status ValidateClasses(const std::vector<ClassInfo>& classes, size_t* bad_
     *bad_index = i;
     if (!c.is_dynamic) {
       if (c.parent_id != -1) {
-        return absl::InvalidArgumentError(
-            absl::StrCat(Describe(c), ": static classes cannot have a parent (only dynamic classes are jointed)"));
+        return absl::InvalidArgumentError(absl::StrCat(
+            Describe(c),
+            ": static classes cannot have a parent (only dynamic classes are jointed)"));
       }
       if (c.pitch != 0.0) {
-        return absl::InvalidArgumentError(absl::StrCat(Describe(c), ": static classes cannot have a pitch"));
+        return absl::InvalidArgumentError(
+            absl::StrCat(Describe(c), ": static classes cannot have a pitch"));
       }
       continue;
     }
@@ -99,28 +113,38 @@ absl::Status ValidateClasses(const std::vector<ClassInfo>& classes, size_t* bad_
           absl::StrCat(Describe(c), ": planes are fitted to static classes only"));
     }
     if (c.joint == JointType::kHelical && c.pitch == 0.0) {
-      return absl::InvalidArgumentError(absl::StrCat(Describe(c), ": helical joint needs a non-zero pitch"));
+      return absl::InvalidArgumentError(
+          absl::StrCat(Describe(c), ": helical joint needs a non-zero pitch"));
     }
     if (c.joint != JointType::kHelical && c.pitch != 0.0) {
       return absl::InvalidArgumentError(
-          absl::StrCat(Describe(c), ": pitch is only meaningful for helical joints, not ", JointTypeName(c.joint)));
+          absl::StrCat(Describe(c),
+                       ": pitch is only meaningful for helical joints, not ",
+                       JointTypeName(c.joint)));
     }
     if (c.parent_id == -1) {
       if (c.joint != JointType::kFree) {
-        return absl::InvalidArgumentError(absl::StrCat(Describe(c), ": joint ", JointTypeName(c.joint),
-                                                       " needs a parent (only 'free' works without one)"));
+        return absl::InvalidArgumentError(
+            absl::StrCat(Describe(c),
+                         ": joint ",
+                         JointTypeName(c.joint),
+                         " needs a parent (only 'free' works without one)"));
       }
       continue;
     }
     const ClassInfo& parent = classes[by_id[c.parent_id]];
     if (parent.is_dynamic) {
-      return absl::InvalidArgumentError(absl::StrCat(Describe(c), ": parent ", Describe(parent),
-                                                     " is dynamic; parents must be static"));
+      return absl::InvalidArgumentError(absl::StrCat(
+          Describe(c), ": parent ", Describe(parent), " is dynamic; parents must be static"));
     }
     if (NeedsPlaneParent(c.joint) && !parent.fit_plane) {
-      return absl::InvalidArgumentError(absl::StrCat(Describe(c), ": joint ", JointTypeName(c.joint), " on parent ",
-                                                     Describe(parent),
-                                                     " needs a plane, but planes are not fitted for the parent"));
+      return absl::InvalidArgumentError(
+          absl::StrCat(Describe(c),
+                       ": joint ",
+                       JointTypeName(c.joint),
+                       " on parent ",
+                       Describe(parent),
+                       " needs a plane, but planes are not fitted for the parent"));
     }
   }
   return absl::OkStatus();
@@ -185,29 +209,37 @@ absl::StatusOr<ClassTable> ClassTable::FromText(const std::string& text) {
   for (absl::string_view raw_line : absl::StrSplit(text, '\n')) {
     ++line_number;
     absl::string_view line = raw_line.substr(0, raw_line.find('#'));
-    const std::vector<absl::string_view> tokens = absl::StrSplit(line, absl::ByAnyChar(" \t\r"), absl::SkipEmpty());
+    const std::vector<absl::string_view> tokens =
+        absl::StrSplit(line, absl::ByAnyChar(" \t\r"), absl::SkipEmpty());
     if (tokens.empty()) continue;
     if (tokens.size() < 3) {
-      return LineError(line_number, absl::StrCat("expected '<id> <name> static|dynamic [parent=<name|id>] "
-                                                 "[joint=<type>] [pitch=<m/rad>] [plane]', got '",
-                                                 absl::StripAsciiWhitespace(line), "'"));
+      return LineError(line_number,
+                       absl::StrCat("expected '<id> <name> static|dynamic [parent=<name|id>] "
+                                    "[joint=<type>] [pitch=<m/rad>] [plane]', got '",
+                                    absl::StripAsciiWhitespace(line),
+                                    "'"));
     }
     ClassInfo c;
     if (!absl::SimpleAtoi(tokens[0], &c.id) || c.id < 0) {
-      return LineError(line_number, absl::StrCat("class id must be a non-negative integer, got '", tokens[0], "'"));
+      return LineError(
+          line_number,
+          absl::StrCat("class id must be a non-negative integer, got '", tokens[0], "'"));
     }
     c.name = std::string(tokens[1]);
     if (!IsValidName(c.name)) {
-      return LineError(line_number, absl::StrCat("invalid class name '", c.name,
-                                                 "' (letters, digits, '_' or '-', not only digits)"));
+      return LineError(
+          line_number,
+          absl::StrCat(
+              "invalid class name '", c.name, "' (letters, digits, '_' or '-', not only digits)"));
     }
     if (tokens[2] == "static") {
       c.is_dynamic = false;
     } else if (tokens[2] == "dynamic") {
       c.is_dynamic = true;
     } else {
-      return LineError(line_number,
-                       absl::StrCat("third field must be 'static' or 'dynamic', got '", tokens[2], "'"));
+      return LineError(
+          line_number,
+          absl::StrCat("third field must be 'static' or 'dynamic', got '", tokens[2], "'"));
     }
     std::string parent_ref;
     bool has_joint = false;
@@ -221,8 +253,10 @@ absl::StatusOr<ClassTable> ClassTable::FromText(const std::string& text) {
       }
       const size_t eq = token.find('=');
       if (eq == absl::string_view::npos || eq + 1 == token.size()) {
-        return LineError(line_number, absl::StrCat("unknown attribute '", token,
-                                                   "' (expected parent=..., joint=..., pitch=... or plane)"));
+        return LineError(line_number,
+                         absl::StrCat("unknown attribute '",
+                                      token,
+                                      "' (expected parent=..., joint=..., pitch=... or plane)"));
       }
       const absl::string_view key = token.substr(0, eq);
       const absl::string_view value = token.substr(eq + 1);
@@ -231,24 +265,32 @@ absl::StatusOr<ClassTable> ClassTable::FromText(const std::string& text) {
         parent_ref = std::string(value);
       } else if (key == "joint") {
         if (has_joint) return LineError(line_number, "'joint=' given twice");
-        absl::StatusOr<JointType> joint = JointTypeFromName(std::string_view(value.data(), value.size()));
+        absl::StatusOr<JointType> joint =
+            JointTypeFromName(std::string_view(value.data(), value.size()));
         if (!joint.ok()) return LineError(line_number, joint.status().message());
         c.joint = *joint;
         has_joint = true;
       } else if (key == "pitch") {
         if (has_pitch) return LineError(line_number, "'pitch=' given twice");
         if (!absl::SimpleAtod(value, &c.pitch) || !std::isfinite(c.pitch)) {
-          return LineError(line_number, absl::StrCat("pitch must be a finite number (m/rad), got '", value, "'"));
+          return LineError(
+              line_number,
+              absl::StrCat("pitch must be a finite number (m/rad), got '", value, "'"));
         }
         has_pitch = true;
       } else {
-        return LineError(line_number, absl::StrCat("unknown attribute '", key,
-                                                   "=' (expected parent=, joint=, pitch= or plane)"));
+        return LineError(
+            line_number,
+            absl::StrCat(
+                "unknown attribute '", key, "=' (expected parent=, joint=, pitch= or plane)"));
       }
     }
     if (!c.is_dynamic && (has_joint || !parent_ref.empty())) {
-      return LineError(line_number, absl::StrCat("static class '", c.name,
-                                                 "' cannot have a parent or a joint (only dynamic classes move)"));
+      return LineError(
+          line_number,
+          absl::StrCat("static class '",
+                       c.name,
+                       "' cannot have a parent or a joint (only dynamic classes move)"));
     }
     classes.push_back(c);
     line_of_class.push_back(line_number);

@@ -1,11 +1,10 @@
 #include "slam/joints/joint.h"
 
+#include <Eigen/Dense>
 #include <array>
 #include <cmath>
 #include <string>
 #include <vector>
-
-#include <Eigen/Dense>
 
 #include "absl/strings/str_cat.h"
 #include "glog/logging.h"
@@ -48,18 +47,30 @@ const JointTypeInfo& Info(JointType type) {
 // (helical handled separately).
 std::vector<int> FreeCoordinates(JointType type) {
   switch (type) {
-    case JointType::kRigid: return {};
-    case JointType::kRevolute: return {5};
-    case JointType::kPrismatic: return {2};
-    case JointType::kHelical: return {};  // coupled column, see FreedomBasis
-    case JointType::kCylindrical: return {2, 5};
-    case JointType::kSpherical: return {3, 4, 5};
-    case JointType::kPlanar: return {0, 1, 5};
-    case JointType::kPointContact: return {0, 1, 3, 4, 5};
-    case JointType::kLineContact: return {0, 1, 3, 5};
-    case JointType::kSphereCylinder: return {0, 3, 4, 5};
-    case JointType::kSphericalWithFinger: return {3, 4};
-    case JointType::kFree: return {0, 1, 2, 3, 4, 5};
+    case JointType::kRigid:
+      return {};
+    case JointType::kRevolute:
+      return {5};
+    case JointType::kPrismatic:
+      return {2};
+    case JointType::kHelical:
+      return {};  // coupled column, see FreedomBasis
+    case JointType::kCylindrical:
+      return {2, 5};
+    case JointType::kSpherical:
+      return {3, 4, 5};
+    case JointType::kPlanar:
+      return {0, 1, 5};
+    case JointType::kPointContact:
+      return {0, 1, 3, 4, 5};
+    case JointType::kLineContact:
+      return {0, 1, 3, 5};
+    case JointType::kSphereCylinder:
+      return {0, 3, 4, 5};
+    case JointType::kSphericalWithFinger:
+      return {3, 4};
+    case JointType::kFree:
+      return {0, 1, 2, 3, 4, 5};
   }
   LOG(FATAL) << "invalid JointType " << static_cast<int>(type);
   return {};
@@ -110,8 +121,8 @@ absl::StatusOr<JointType> JointTypeFromName(std::string_view name) {
   for (const JointTypeInfo& info : kJointTypes) {
     absl::StrAppend(&expected, expected.empty() ? "" : ", ", info.name);
   }
-  return absl::InvalidArgumentError(
-      absl::StrCat("unknown joint type '", std::string(name), "' (expected one of: ", expected, ")"));
+  return absl::InvalidArgumentError(absl::StrCat(
+      "unknown joint type '", std::string(name), "' (expected one of: ", expected, ")"));
 }
 
 int DegreesOfFreedom(JointType type) { return Info(type).dof; }
@@ -143,11 +154,14 @@ Joint::Joint(JointType type, const SE3d& world_from_joint, double pitch)
   CHECK(std::isfinite(pitch)) << "helical pitch must be finite";
 }
 
-Joint Joint::FromPlane(JointType type, const Eigen::Vector3d& normal, const Eigen::Vector3d& anchor) {
+Joint Joint::FromPlane(JointType type,
+                       const Eigen::Vector3d& normal,
+                       const Eigen::Vector3d& anchor) {
   return Joint(type, SE3d(FrameWithAxis(normal, 2), anchor));
 }
 
-Joint Joint::FromPlaneCoefficients(const Eigen::Vector4d& plane, const Eigen::Vector3d& near_point) {
+Joint Joint::FromPlaneCoefficients(const Eigen::Vector4d& plane,
+                                   const Eigen::Vector3d& near_point) {
   const Eigen::Vector3d n = plane.head<3>();
   const double norm = n.norm();
   CHECK(plane.allFinite() && norm > 1e-12) << "degenerate plane " << plane.transpose();
@@ -164,7 +178,9 @@ Joint Joint::FromAxis(JointType type,
   return Joint(type, SE3d(FrameWithAxis(direction, axis_index), point), pitch);
 }
 
-Joint Joint::FromCenter(JointType type, const Eigen::Vector3d& center, const Eigen::Vector3d& finger_axis) {
+Joint Joint::FromCenter(JointType type,
+                        const Eigen::Vector3d& center,
+                        const Eigen::Vector3d& finger_axis) {
   return Joint(type, SE3d(FrameWithAxis(finger_axis, 2), center));
 }
 

@@ -37,7 +37,8 @@ namespace twist::optimization {
 // ----------------------------------------------------------------- autodiff
 class ConstantVelocityFunctor {
  public:
-  ConstantVelocityFunctor(const geometry::Matrix6d& world_projector, const geometry::Vector6d& sqrt_weights)
+  ConstantVelocityFunctor(const geometry::Matrix6d& world_projector,
+                          const geometry::Vector6d& sqrt_weights)
       : world_projector_(world_projector), sqrt_weights_(sqrt_weights) {}
 
   template <typename T>
@@ -78,10 +79,13 @@ class ConstantVelocityFunctor {
 // ----------------------------------------------------------------- analytic
 class ConstantVelocityCost final : public ceres::SizedCostFunction<6, 6, 7, 6, 7, 6, 7> {
  public:
-  ConstantVelocityCost(const geometry::Matrix6d& world_projector, const geometry::Vector6d& sqrt_weights)
+  ConstantVelocityCost(const geometry::Matrix6d& world_projector,
+                       const geometry::Vector6d& sqrt_weights)
       : world_projector_(world_projector), sqrt_weights_(sqrt_weights) {}
 
-  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override {
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override {
     using geometry::Matrix6d;
     using geometry::SE3d;
     using geometry::Vector6d;

@@ -56,10 +56,12 @@ class DynamicReprojectionFunctor {
     const SE3T camera_from_object =
         SE3T::FromParams(camera_from_world) * SE3T::Exp(eta) * SE3T::FromParams(world_from_object);
     const Eigen::Matrix<T, 3, 1> p_c =
-        camera_from_object * Eigen::Matrix<T, 3, 1>(point_in_object[0], point_in_object[1], point_in_object[2]);
+        camera_from_object *
+        Eigen::Matrix<T, 3, 1>(point_in_object[0], point_in_object[1], point_in_object[2]);
     if (!(p_c.z() > T(kMinProjectionDepth))) return false;
     Eigen::Map<Eigen::Matrix<T, N, 1>> r(residuals);
-    r = T(sqrt_information_) * (observed_.template cast<T>() - ProjectToObservation<N>(camera_, p_c));
+    r = T(sqrt_information_) *
+        (observed_.template cast<T>() - ProjectToObservation<N>(camera_, p_c));
     return true;
   }
 
@@ -91,7 +93,9 @@ class DynamicReprojectionCost final : public ceres::SizedCostFunction<N, 7, 6, 7
         sqrt_information_(sqrt_information),
         world_projector_(world_projector) {}
 
-  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override {
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override {
     const geometry::SE3d camera_from_world = geometry::SE3d::FromParams(parameters[0]);
     const Eigen::Map<const geometry::Vector6d> xi(parameters[1]);
     const geometry::SE3d world_from_object = geometry::SE3d::FromParams(parameters[2]);
@@ -110,7 +114,8 @@ class DynamicReprojectionCost final : public ceres::SizedCostFunction<N, 7, 6, 7
     // D · R_cw: derivative with respect to the moved world point.
     const Eigen::Matrix<double, N, 3> d_r_d_pw_moved =
         -sqrt_information_ * ProjectionJacobian<N>(camera_, p_c) * camera_from_world.rotation();
-    const Eigen::Matrix<double, N, 6> d_r_d_left = d_r_d_pw_moved * PointPerturbationJacobian(p_w_moved);
+    const Eigen::Matrix<double, N, 6> d_r_d_left =
+        d_r_d_pw_moved * PointPerturbationJacobian(p_w_moved);
     if (jacobians[0] != nullptr) {
       SE3LocalToAmbientJacobian<N>(parameters[0], d_r_d_left, jacobians[0]);
     }

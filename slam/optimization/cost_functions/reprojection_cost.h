@@ -42,8 +42,8 @@ class ReprojectionFunctor {
   template <typename T>
   bool operator()(const T* camera_from_world, const T* point_in_world, T* residuals) const {
     const geometry::SE3<T> pose = geometry::SE3<T>::FromParams(camera_from_world);
-    const Eigen::Matrix<T, 3, 1> p_c = pose * Eigen::Matrix<T, 3, 1>(point_in_world[0], point_in_world[1],
-                                                                    point_in_world[2]);
+    const Eigen::Matrix<T, 3, 1> p_c =
+        pose * Eigen::Matrix<T, 3, 1>(point_in_world[0], point_in_world[1], point_in_world[2]);
     if (!(p_c.z() > T(kMinProjectionDepth))) return false;
     const Eigen::Matrix<T, N, 1> predicted = ProjectToObservation<N>(camera_, p_c);
     Eigen::Map<Eigen::Matrix<T, N, 1>> r(residuals);
@@ -111,7 +111,8 @@ bool EvaluateStaticReprojection(const geometry::StereoCamera& camera,
   Eigen::Map<Eigen::Matrix<double, N, 1>> r(residuals);
   r = s * (observed - ProjectToObservation<N>(camera, p_c));
   if (jac_pose == nullptr && jac_point == nullptr) return true;
-  const Eigen::Matrix<double, N, 3> d_r_d_pw = -s * ProjectionJacobian<N>(camera, p_c) * pose.rotation();
+  const Eigen::Matrix<double, N, 3> d_r_d_pw =
+      -s * ProjectionJacobian<N>(camera, p_c) * pose.rotation();
   if (jac_pose != nullptr) {
     const Eigen::Matrix<double, N, 6> local = d_r_d_pw * PointPerturbationJacobian(p_w);
     SE3LocalToAmbientJacobian<N>(camera_from_world, local, jac_pose);
@@ -133,11 +134,17 @@ class ReprojectionCost final : public ceres::SizedCostFunction<N, 7, 3> {
                    double sqrt_information)
       : camera_(camera), observed_(observed), sqrt_information_(sqrt_information) {}
 
-  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override {
-    return internal::EvaluateStaticReprojection<N>(
-        camera_, observed_, sqrt_information_, parameters[0], Eigen::Vector3d(parameters[1]),
-        residuals, jacobians != nullptr ? jacobians[0] : nullptr,
-        jacobians != nullptr ? jacobians[1] : nullptr);
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override {
+    return internal::EvaluateStaticReprojection<N>(camera_,
+                                                   observed_,
+                                                   sqrt_information_,
+                                                   parameters[0],
+                                                   Eigen::Vector3d(parameters[1]),
+                                                   residuals,
+                                                   jacobians != nullptr ? jacobians[0] : nullptr,
+                                                   jacobians != nullptr ? jacobians[1] : nullptr);
   }
 
  private:
@@ -158,10 +165,17 @@ class PoseOnlyReprojectionCost final : public ceres::SizedCostFunction<N, 7> {
         sqrt_information_(sqrt_information),
         point_in_world_(point_in_world) {}
 
-  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override {
-    return internal::EvaluateStaticReprojection<N>(camera_, observed_, sqrt_information_, parameters[0],
-                                                   point_in_world_, residuals,
-                                                   jacobians != nullptr ? jacobians[0] : nullptr, nullptr);
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override {
+    return internal::EvaluateStaticReprojection<N>(camera_,
+                                                   observed_,
+                                                   sqrt_information_,
+                                                   parameters[0],
+                                                   point_in_world_,
+                                                   residuals,
+                                                   jacobians != nullptr ? jacobians[0] : nullptr,
+                                                   nullptr);
   }
 
  private:

@@ -1,7 +1,8 @@
 // Constrained twist reprojection of object tracking (paper eq. dyna_tracking).
 //
 // Error model, N = 2 (mono) or 3 (stereo, u_right as third row):
-//   r(ξ) = s · (x_obs − π_N(camera_from_world_i · Exp(Π ξ) · world_from_object_{i−1} · p_in_object))
+//   r(ξ) = s · (x_obs − π_N(camera_from_world_i · Exp(Π ξ) · world_from_object_{i−1} ·
+//   p_in_object))
 // Parameter: ξ ∈ R⁶, the object's twist in the world frame ((v, ω), Euclidean
 // block, no manifold). Constants: camera_from_world_i, world_from_object_{i−1},
 // the 6x6 world projector Π (joints::Joint::WorldProjector()), the point in the
@@ -33,8 +34,8 @@ struct TwistTrackingObservation {
   geometry::StereoCamera camera;
   ObservationVector<N> observed = ObservationVector<N>::Zero();
   double sqrt_information = 1.0;
-  geometry::SE3d camera_from_world;          // current frame i (fixed)
-  geometry::SE3d world_from_object_previous;  // frame i−1 (fixed)
+  geometry::SE3d camera_from_world;                                     // current frame i (fixed)
+  geometry::SE3d world_from_object_previous;                            // frame i−1 (fixed)
   geometry::Matrix6d world_projector = geometry::Matrix6d::Identity();  // Π
   Eigen::Vector3d point_in_object = Eigen::Vector3d::Zero();
 };
@@ -61,7 +62,8 @@ class TwistTrackingFunctor {
   }
 
   static ceres::CostFunction* Create(const TwistTrackingObservation<N>& obs) {
-    return new ceres::AutoDiffCostFunction<TwistTrackingFunctor, N, 6>(new TwistTrackingFunctor(obs));
+    return new ceres::AutoDiffCostFunction<TwistTrackingFunctor, N, 6>(
+        new TwistTrackingFunctor(obs));
   }
 
  private:
@@ -75,7 +77,9 @@ class TwistTrackingCost final : public ceres::SizedCostFunction<N, 6> {
   explicit TwistTrackingCost(const TwistTrackingObservation<N>& obs)
       : obs_(obs), point_in_world_previous_(obs.world_from_object_previous * obs.point_in_object) {}
 
-  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override {
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override {
     const Eigen::Map<const geometry::Vector6d> xi(parameters[0]);
     const geometry::Vector6d eta = obs_.world_projector * xi;
     const Eigen::Vector3d p_w = geometry::SE3d::Exp(eta) * point_in_world_previous_;

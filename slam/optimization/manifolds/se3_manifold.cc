@@ -1,8 +1,7 @@
 #include "slam/optimization/manifolds/se3_manifold.h"
 
-#include <cmath>
-
 #include <Eigen/Geometry>
+#include <cmath>
 
 namespace twist::optimization {
 namespace {
@@ -86,7 +85,8 @@ bool SE3Manifold::MinusJacobian(const double* x, double* jacobian) const {
 
 Eigen::Matrix<double, 7, 6, Eigen::RowMajor> SE3PlusJacobian(const double* x) {
   const Eigen::Quaterniond q = NormalizedQuaternion(x);
-  Eigen::Matrix<double, 7, 6, Eigen::RowMajor> p = Eigen::Matrix<double, 7, 6, Eigen::RowMajor>::Zero();
+  Eigen::Matrix<double, 7, 6, Eigen::RowMajor> p =
+      Eigen::Matrix<double, 7, 6, Eigen::RowMajor>::Zero();
   p.block<4, 3>(0, 3) = 0.5 * QuaternionLeftBlock(q);
   p.block<3, 3>(4, 0) = q.toRotationMatrix();
   return p;
@@ -94,7 +94,8 @@ Eigen::Matrix<double, 7, 6, Eigen::RowMajor> SE3PlusJacobian(const double* x) {
 
 Eigen::Matrix<double, 6, 7, Eigen::RowMajor> SE3MinusJacobian(const double* x) {
   const Eigen::Quaterniond q = NormalizedQuaternion(x);
-  Eigen::Matrix<double, 6, 7, Eigen::RowMajor> m = Eigen::Matrix<double, 6, 7, Eigen::RowMajor>::Zero();
+  Eigen::Matrix<double, 6, 7, Eigen::RowMajor> m =
+      Eigen::Matrix<double, 6, 7, Eigen::RowMajor>::Zero();
   m.block<3, 3>(0, 4) = q.toRotationMatrix().transpose();
   m.block<3, 4>(3, 0) = 2.0 * QuaternionLeftBlock(q).transpose();
   return m;

@@ -1,10 +1,10 @@
 // SE3/SO3 with ceres::Jet: the templates compile for Jets and their automatic
 // derivatives equal the closed-form Jacobians, including at ξ = 0 exactly
 // (where the small-angle branches are taken).
-#include <random>
+#include <gtest/gtest.h>
 
 #include <Eigen/Core>
-#include <gtest/gtest.h>
+#include <random>
 
 #include "ceres/jet.h"
 #include "slam/geometry/se3.h"

@@ -2,12 +2,12 @@
 // seeded random samples; derivatives checked against central differences.
 #include "slam/geometry/se3.h"
 
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
 #include <cmath>
 #include <functional>
 #include <random>
-
-#include <Eigen/Dense>
-#include <gtest/gtest.h>
 
 #include "slam/geometry/so3.h"
 
@@ -20,7 +20,9 @@ constexpr int kSamples = 200;
 class Random {
  public:
   explicit Random(unsigned seed) : rng_(seed) {}
-  double Uniform(double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng_); }
+  double Uniform(double lo, double hi) {
+    return std::uniform_real_distribution<double>(lo, hi)(rng_);
+  }
   Eigen::Vector3d Vector(double scale) {
     return Eigen::Vector3d(Uniform(-scale, scale), Uniform(-scale, scale), Uniform(-scale, scale));
   }
@@ -65,10 +67,10 @@ Matrix MatrixExponential(const Matrix& a) {
 
 // Central-difference Jacobian of f: R^n -> R^m at x.
 template <int M, int N>
-Eigen::Matrix<double, M, N> NumericJacobian(const std::function<Eigen::Matrix<double, M, 1>(
-                                                const Eigen::Matrix<double, N, 1>&)>& f,
-                                            const Eigen::Matrix<double, N, 1>& x,
-                                            double h = 1e-6) {
+Eigen::Matrix<double, M, N> NumericJacobian(
+    const std::function<Eigen::Matrix<double, M, 1>(const Eigen::Matrix<double, N, 1>&)>& f,
+    const Eigen::Matrix<double, N, 1>& x,
+    double h = 1e-6) {
   Eigen::Matrix<double, M, N> j;
   for (int i = 0; i < N; ++i) {
     Eigen::Matrix<double, N, 1> dx = Eigen::Matrix<double, N, 1>::Zero();
@@ -110,7 +112,8 @@ TEST(SO3Test, ExpLogNearZero) {
       const Eigen::Vector3d omega = angle * random.Direction();
       const SO3d r = SO3d::Exp(omega);
       EXPECT_LE((r.Log() - omega).norm(), 1e-15 + 1e-13 * angle) << angle;
-      EXPECT_LT((r.matrix() - MatrixExponential<Eigen::Matrix3d>(SO3d::Hat(omega))).norm(), 1e-15 + 1e-13 * angle);
+      EXPECT_LT((r.matrix() - MatrixExponential<Eigen::Matrix3d>(SO3d::Hat(omega))).norm(),
+                1e-15 + 1e-13 * angle);
     }
   }
 }
@@ -168,7 +171,10 @@ TEST(SO3Test, GroupAxioms) {
     EXPECT_LT((a.Adjoint() - a.matrix()).norm(), 1e-15);
     // R Exp(ω) Rᵀ = Exp(R ω).
     const Eigen::Vector3d omega = random.RotationVector(2.0);
-    EXPECT_LT(((a * SO3d::Exp(omega) * a.Inverse()).matrix() - SO3d::Exp(a.matrix() * omega).matrix()).norm(), 1e-12);
+    EXPECT_LT(
+        ((a * SO3d::Exp(omega) * a.Inverse()).matrix() - SO3d::Exp(a.matrix() * omega).matrix())
+            .norm(),
+        1e-12);
   }
 }
 
@@ -180,12 +186,16 @@ TEST(SO3Test, JacobiansMatchCentralDifferences) {
       const SO3d r = SO3d::Exp(omega);
       // J_l: Log(Exp(ω + δ) Exp(ω)⁻¹) ≈ J_l δ.
       const Eigen::Matrix3d jl = NumericJacobian<3, 3>(
-          [&](const Eigen::Vector3d& d) { return Eigen::Vector3d((SO3d::Exp(omega + d) * r.Inverse()).Log()); },
+          [&](const Eigen::Vector3d& d) {
+            return Eigen::Vector3d((SO3d::Exp(omega + d) * r.Inverse()).Log());
+          },
           Eigen::Vector3d::Zero());
       EXPECT_LT((SO3d::LeftJacobian(omega) - jl).norm(), 1e-8) << max_angle;
       // J_r: Log(Exp(ω)⁻¹ Exp(ω + δ)) ≈ J_r δ.
       const Eigen::Matrix3d jr = NumericJacobian<3, 3>(
-          [&](const Eigen::Vector3d& d) { return Eigen::Vector3d((r.Inverse() * SO3d::Exp(omega + d)).Log()); },
+          [&](const Eigen::Vector3d& d) {
+            return Eigen::Vector3d((r.Inverse() * SO3d::Exp(omega + d)).Log());
+          },
           Eigen::Vector3d::Zero());
       EXPECT_LT((SO3d::RightJacobian(omega) - jr).norm(), 1e-8);
       // Inverses: d Log(Exp(ε) R)/dε = J_l⁻¹, d Log(R Exp(ε))/dε = J_r⁻¹.
@@ -197,7 +207,9 @@ TEST(SO3Test, JacobiansMatchCentralDifferences) {
           [&](const Eigen::Vector3d& e) { return Eigen::Vector3d((r * SO3d::Exp(e)).Log()); },
           Eigen::Vector3d::Zero());
       EXPECT_LT((SO3d::RightJacobianInverse(omega) - jr_inv).norm(), 1e-7);
-      EXPECT_LT((SO3d::LeftJacobian(omega) * SO3d::LeftJacobianInverse(omega) - Eigen::Matrix3d::Identity()).norm(),
+      EXPECT_LT((SO3d::LeftJacobian(omega) * SO3d::LeftJacobianInverse(omega) -
+                 Eigen::Matrix3d::Identity())
+                    .norm(),
                 1e-12);
     }
   }
@@ -231,7 +243,8 @@ TEST(SE3Test, HatVeeAndExpMatchesMatrixExponential) {
 
 TEST(SE3Test, ExpLogEdgeCases) {
   Random random(12);
-  for (double angle : {0.0, 1e-300, 1e-12, 1e-8, 1e-5, 1e-3, 0.0999, 0.1001, 1.0, kPi - 1e-3, kPi - 1e-7}) {
+  for (double angle :
+       {0.0, 1e-300, 1e-12, 1e-8, 1e-5, 1e-3, 0.0999, 0.1001, 1.0, kPi - 1e-3, kPi - 1e-7}) {
     for (int i = 0; i < 20; ++i) {
       Vector6d xi;
       xi << random.Vector(3.0), angle * random.Direction();
@@ -277,9 +290,13 @@ TEST(SE3Test, AdjointIdentities) {
     const SE3d t = random.Pose(), u = random.Pose();
     const Vector6d xi = random.Twist(2.0, 2.5);
     // T Exp(ξ) T⁻¹ = Exp(Ad(T) ξ).
-    EXPECT_LT(((t * SE3d::Exp(xi) * t.Inverse()).matrix() - SE3d::Exp(t.Adjoint() * xi).matrix()).norm(), 1e-10);
+    EXPECT_LT(
+        ((t * SE3d::Exp(xi) * t.Inverse()).matrix() - SE3d::Exp(t.Adjoint() * xi).matrix()).norm(),
+        1e-10);
     // Hat form: T Hat(ξ) T⁻¹ = Hat(Ad ξ).
-    EXPECT_LT((t.matrix() * SE3d::Hat(xi) * t.Inverse().matrix() - SE3d::Hat(t.Adjoint() * xi)).norm(), 1e-10);
+    EXPECT_LT(
+        (t.matrix() * SE3d::Hat(xi) * t.Inverse().matrix() - SE3d::Hat(t.Adjoint() * xi)).norm(),
+        1e-10);
     EXPECT_LT(((t * u).Adjoint() - t.Adjoint() * u.Adjoint()).norm(), 1e-10);
     EXPECT_LT((t.Inverse().Adjoint() - t.Adjoint().inverse()).norm(), 1e-10);
     // Paper eq. (adjoint): [[R, [t]x R], [0, R]].
@@ -298,10 +315,12 @@ TEST(SE3Test, JacobiansMatchCentralDifferences) {
       const Vector6d xi = random.Twist(3.0, max_angle);
       const SE3d t = SE3d::Exp(xi);
       const Matrix6d jl = NumericJacobian<6, 6>(
-          [&](const Vector6d& d) { return Vector6d((SE3d::Exp(xi + d) * t.Inverse()).Log()); }, Vector6d::Zero());
+          [&](const Vector6d& d) { return Vector6d((SE3d::Exp(xi + d) * t.Inverse()).Log()); },
+          Vector6d::Zero());
       EXPECT_LT((SE3d::LeftJacobian(xi) - jl).norm(), 1e-7) << max_angle;
       const Matrix6d jr = NumericJacobian<6, 6>(
-          [&](const Vector6d& d) { return Vector6d((t.Inverse() * SE3d::Exp(xi + d)).Log()); }, Vector6d::Zero());
+          [&](const Vector6d& d) { return Vector6d((t.Inverse() * SE3d::Exp(xi + d)).Log()); },
+          Vector6d::Zero());
       EXPECT_LT((SE3d::RightJacobian(xi) - jr).norm(), 1e-7) << max_angle;
       const Matrix6d jl_inv = NumericJacobian<6, 6>(
           [&](const Vector6d& e) { return Vector6d((SE3d::Exp(e) * t).Log()); }, Vector6d::Zero());
@@ -309,7 +328,9 @@ TEST(SE3Test, JacobiansMatchCentralDifferences) {
       const Matrix6d jr_inv = NumericJacobian<6, 6>(
           [&](const Vector6d& e) { return Vector6d((t * SE3d::Exp(e)).Log()); }, Vector6d::Zero());
       EXPECT_LT((SE3d::RightJacobianInverse(xi) - jr_inv).norm(), 1e-7) << max_angle;
-      EXPECT_LT((SE3d::LeftJacobian(xi) * SE3d::LeftJacobianInverse(xi) - Matrix6d::Identity()).norm(), 1e-12);
+      EXPECT_LT(
+          (SE3d::LeftJacobian(xi) * SE3d::LeftJacobianInverse(xi) - Matrix6d::Identity()).norm(),
+          1e-12);
       // J_l(ξ) = Ad(Exp ξ) J_r(ξ).
       EXPECT_LT((SE3d::LeftJacobian(xi) - t.Adjoint() * SE3d::RightJacobian(xi)).norm(), 1e-11);
       // d(Exp(ξ) p)/dξ = [I, −[Exp(ξ)p]x] J_l(ξ) (used by the twist costs).

@@ -1,11 +1,11 @@
 #include "slam/geometry/stereo_camera.h"
 
+#include <gtest/gtest.h>
+
+#include <Eigen/Core>
 #include <cmath>
 #include <limits>
 #include <random>
-
-#include <Eigen/Core>
-#include <gtest/gtest.h>
 
 #include "slam/geometry/se3.h"
 
@@ -27,7 +27,9 @@ StereoCamera Camera() {
 class Random {
  public:
   explicit Random(unsigned seed) : rng_(seed) {}
-  double Uniform(double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng_); }
+  double Uniform(double lo, double hi) {
+    return std::uniform_real_distribution<double>(lo, hi)(rng_);
+  }
   Eigen::Vector3d PointInFront() {
     const double z = Uniform(0.5, 80.0);
     return Eigen::Vector3d(Uniform(-0.8, 0.8) * z, Uniform(-0.3, 0.3) * z, z);
@@ -85,9 +87,12 @@ TEST(StereoCameraTest, ProjectionJacobiansMatchCentralDifferences) {
     for (int k = 0; k < 3; ++k) {
       Eigen::Vector3d d = Eigen::Vector3d::Zero();
       d[k] = h;
-      const Eigen::Vector2d n2 = (camera.Project(Eigen::Vector3d(p + d)) - camera.Project(Eigen::Vector3d(p - d))) / (2 * h);
-      const Eigen::Vector3d n3 =
-          (camera.ProjectStereo(Eigen::Vector3d(p + d)) - camera.ProjectStereo(Eigen::Vector3d(p - d))) / (2 * h);
+      const Eigen::Vector2d n2 =
+          (camera.Project(Eigen::Vector3d(p + d)) - camera.Project(Eigen::Vector3d(p - d))) /
+          (2 * h);
+      const Eigen::Vector3d n3 = (camera.ProjectStereo(Eigen::Vector3d(p + d)) -
+                                  camera.ProjectStereo(Eigen::Vector3d(p - d))) /
+                                 (2 * h);
       EXPECT_LT((j2.col(k) - n2).norm(), 1e-6 * std::max(1.0, n2.norm()));
       EXPECT_LT((j3.col(k) - n3).norm(), 1e-6 * std::max(1.0, n3.norm()));
     }
@@ -187,8 +192,10 @@ TEST(TriangulateTwoViewTest, ExactOnSyntheticPoints) {
     xi2[0] += 1.0;  // baseline of about a metre
     const SE3d cam1_from_world = SE3d::Exp(xi1), cam2_from_world = SE3d::Exp(xi2);
     const Eigen::Vector3d p1 = cam1_from_world * p, p2 = cam2_from_world * p;
-    const std::optional<Eigen::Vector3d> x = TriangulateTwoView(
-        cam1_from_world.matrix3x4(), cam2_from_world.matrix3x4(), p1.hnormalized(), p2.hnormalized());
+    const std::optional<Eigen::Vector3d> x = TriangulateTwoView(cam1_from_world.matrix3x4(),
+                                                                cam2_from_world.matrix3x4(),
+                                                                p1.hnormalized(),
+                                                                p2.hnormalized());
     ASSERT_TRUE(x.has_value());
     EXPECT_LT((*x - p).norm(), 1e-8);
   }
@@ -199,8 +206,10 @@ TEST(TriangulateTwoViewTest, ParallelRaysAreDegenerate) {
   // the rays are parallel and meet only at infinity.
   const SE3d cam1_from_world;
   const SE3d cam2_from_world(Eigen::Matrix3d::Identity(), Eigen::Vector3d(-1.0, 0.0, 0.0));
-  EXPECT_FALSE(TriangulateTwoView(cam1_from_world.matrix3x4(), cam2_from_world.matrix3x4(),
-                                  Eigen::Vector2d(0.1, -0.05), Eigen::Vector2d(0.1, -0.05))
+  EXPECT_FALSE(TriangulateTwoView(cam1_from_world.matrix3x4(),
+                                  cam2_from_world.matrix3x4(),
+                                  Eigen::Vector2d(0.1, -0.05),
+                                  Eigen::Vector2d(0.1, -0.05))
                    .has_value());
 }
 

@@ -1,9 +1,9 @@
 #include "slam/joints/class_table.h"
 
-#include <string>
-
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+
+#include <string>
 
 namespace twist::joints {
 namespace {
@@ -113,12 +113,17 @@ TEST(ClassTableTest, SyntaxErrorsNameTheLine) {
   ExpectParseError("-3 road static\n", {"line 1", "non-negative"});
   ExpectParseError("7 road moving\n", {"line 1", "'moving'"});
   ExpectParseError("7 123 static\n", {"line 1", "invalid class name"});
-  ExpectParseError("7 road static plane\n26 car dynamic parent=road joint=hinge\n", {"line 2", "hinge"});
-  ExpectParseError("7 road static plane\n26 car dynamic parent=road color=red\n", {"line 2", "color"});
-  ExpectParseError("7 road static plane\n26 car dynamic parent=road joint=planar speed\n", {"line 2", "speed"});
-  ExpectParseError("7 road static\n\n5 s dynamic parent=road joint=helical pitch=abc\n", {"line 3", "pitch"});
+  ExpectParseError("7 road static plane\n26 car dynamic parent=road joint=hinge\n",
+                   {"line 2", "hinge"});
+  ExpectParseError("7 road static plane\n26 car dynamic parent=road color=red\n",
+                   {"line 2", "color"});
+  ExpectParseError("7 road static plane\n26 car dynamic parent=road joint=planar speed\n",
+                   {"line 2", "speed"});
+  ExpectParseError("7 road static\n\n5 s dynamic parent=road joint=helical pitch=abc\n",
+                   {"line 3", "pitch"});
   ExpectParseError("7 road static plane plane\n", {"line 1", "twice"});
-  ExpectParseError("7 road static plane\n26 car dynamic parent=road parent=7 joint=planar\n", {"line 2", "twice"});
+  ExpectParseError("7 road static plane\n26 car dynamic parent=road parent=7 joint=planar\n",
+                   {"line 2", "twice"});
 }
 
 TEST(ClassTableTest, SemanticErrorsNameTheLineAndClass) {
@@ -128,29 +133,35 @@ TEST(ClassTableTest, SemanticErrorsNameTheLineAndClass) {
   ExpectParseError("7 road static plane\n26 car dynamic parent=8 joint=planar\n",
                    {"line 2", "car", "unknown parent id 8"});
   // Dynamic parent.
-  ExpectParseError("7 road static plane\n26 car dynamic parent=road joint=planar\n"
-                   "50 trailer dynamic parent=car joint=spherical\n",
-                   {"line 3", "trailer", "dynamic"});
+  ExpectParseError(
+      "7 road static plane\n26 car dynamic parent=road joint=planar\n"
+      "50 trailer dynamic parent=car joint=spherical\n",
+      {"line 3", "trailer", "dynamic"});
   // Cycle (a dynamic class that is its own parent, and a two-class loop).
   ExpectParseError("26 car dynamic parent=car joint=free\n", {"line 1", "cycle"});
-  ExpectParseError("1 a dynamic parent=b joint=free\n2 b dynamic parent=a joint=free\n", {"cycle", "a -> b -> a"});
+  ExpectParseError("1 a dynamic parent=b joint=free\n2 b dynamic parent=a joint=free\n",
+                   {"cycle", "a -> b -> a"});
   // Duplicates.
   ExpectParseError("7 road static\n7 street static\n", {"line 2", "duplicate id 7"});
   ExpectParseError("7 road static\n8 road static\n", {"line 2", "duplicate name 'road'"});
   // Static class with a joint or a parent.
   ExpectParseError("7 road static joint=planar\n", {"line 1", "static class 'road'"});
-  ExpectParseError("7 road static\n8 sidewalk static parent=road\n", {"line 2", "static class 'sidewalk'"});
+  ExpectParseError("7 road static\n8 sidewalk static parent=road\n",
+                   {"line 2", "static class 'sidewalk'"});
   // Joint needs a parent / a plane; pitch only for helical; planes only for static classes.
   ExpectParseError("26 car dynamic joint=planar\n", {"line 1", "needs a parent"});
   ExpectParseError("7 road static\n26 car dynamic parent=road joint=planar\n", {"line 2", "plane"});
   ExpectParseError("12 wall static plane\n40 door dynamic parent=wall joint=revolute pitch=0.1\n",
                    {"line 2", "helical"});
-  ExpectParseError("12 wall static plane\n41 screw dynamic parent=wall joint=helical\n", {"line 2", "pitch"});
+  ExpectParseError("12 wall static plane\n41 screw dynamic parent=wall joint=helical\n",
+                   {"line 2", "pitch"});
   ExpectParseError("26 car dynamic joint=free plane\n", {"line 1", "static classes only"});
 }
 
 TEST(ClassTableTest, CreateValidates) {
-  EXPECT_TRUE(ClassTable::Create({Static(7, "road", true), Dynamic(26, "car", 7, JointType::kPlanar)}).ok());
+  EXPECT_TRUE(
+      ClassTable::Create({Static(7, "road", true), Dynamic(26, "car", 7, JointType::kPlanar)})
+          .ok());
   EXPECT_TRUE(ClassTable::Create({}).ok());
 
   auto expect_error = [](std::vector<ClassInfo> classes, const std::string& fragment) {
@@ -159,11 +170,14 @@ TEST(ClassTableTest, CreateValidates) {
     EXPECT_EQ(table.status().code(), absl::StatusCode::kInvalidArgument);
     EXPECT_THAT(std::string(table.status().message()), HasSubstr(fragment));
   };
-  expect_error({Static(7, "road", true), Dynamic(26, "car", 70, JointType::kPlanar)}, "unknown parent id 70");
-  expect_error({Static(7, "road", true), Dynamic(26, "car", 7, JointType::kPlanar),
+  expect_error({Static(7, "road", true), Dynamic(26, "car", 70, JointType::kPlanar)},
+               "unknown parent id 70");
+  expect_error({Static(7, "road", true),
+                Dynamic(26, "car", 7, JointType::kPlanar),
                 Dynamic(27, "trailer", 26, JointType::kFree)},
                "is dynamic");
-  expect_error({Dynamic(1, "a", 2, JointType::kFree), Dynamic(2, "b", 1, JointType::kFree)}, "cycle");
+  expect_error({Dynamic(1, "a", 2, JointType::kFree), Dynamic(2, "b", 1, JointType::kFree)},
+               "cycle");
   expect_error({Static(7, "road"), Static(7, "street")}, "duplicate id");
   expect_error({Static(7, "road"), Static(8, "road")}, "duplicate name");
   ClassInfo static_with_parent = Static(8, "sidewalk");

@@ -1,11 +1,11 @@
 #include "slam/joints/joint.h"
 
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
 #include <cmath>
 #include <random>
 #include <vector>
-
-#include <Eigen/Dense>
-#include <gtest/gtest.h>
 
 namespace twist::joints {
 namespace {
@@ -28,8 +28,12 @@ double PitchFor(JointType type) { return type == JointType::kHelical ? kPitch : 
 class Random {
  public:
   explicit Random(unsigned seed) : rng_(seed) {}
-  double Uniform(double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng_); }
-  Eigen::Vector3d Vector(double scale) { return Eigen::Vector3d(Uniform(-scale, scale), Uniform(-scale, scale), Uniform(-scale, scale)); }
+  double Uniform(double lo, double hi) {
+    return std::uniform_real_distribution<double>(lo, hi)(rng_);
+  }
+  Eigen::Vector3d Vector(double scale) {
+    return Eigen::Vector3d(Uniform(-scale, scale), Uniform(-scale, scale), Uniform(-scale, scale));
+  }
   Vector6d Twist(double scale) {
     Vector6d xi;
     xi << Vector(scale), Vector(scale);
@@ -116,7 +120,8 @@ TEST(JointWorldProjectorTest, IsTheAdjointConjugateOfTheJointProjector) {
       EXPECT_LT((joint.Project(xi) - pi * xi).norm(), 1e-10);
       // T Exp(ξ_l) T⁻¹ = Exp(Ad(T) ξ_l): the world twist moves like the joint twist.
       const Vector6d xi_l = random.Twist(0.5);
-      const SE3d lhs = joint.world_from_joint() * SE3d::Exp(xi_l) * joint.world_from_joint().Inverse();
+      const SE3d lhs =
+          joint.world_from_joint() * SE3d::Exp(xi_l) * joint.world_from_joint().Inverse();
       EXPECT_LT((lhs.matrix() - SE3d::Exp(joint.JointToWorld(xi_l)).matrix()).norm(), 1e-10);
     }
   }
@@ -133,7 +138,8 @@ TEST(JointMotionTest, LogOfMotionInJointFrameLiesInFreedomSpace) {
       const Joint joint(type, random.Pose(), PitchFor(type));
       const Vector6d xi = random.Twist(0.8);
       const SE3d motion = SE3d::Exp(joint.WorldProjector() * xi);
-      const SE3d motion_in_joint = joint.world_from_joint().Inverse() * motion * joint.world_from_joint();
+      const SE3d motion_in_joint =
+          joint.world_from_joint().Inverse() * motion * joint.world_from_joint();
       const Vector6d log = motion_in_joint.Log();
       EXPECT_LT((log - pi_l * log).norm(), 1e-9);
       EXPECT_LT((log - pi_l * joint.WorldToJoint(xi)).norm(), 1e-9);
@@ -151,7 +157,9 @@ TEST(JointMotionTest, VelocityFieldRespectsContactConditions) {
     const Eigen::Vector3d o = frame.translation();
     const Eigen::Vector3d x = r.col(0), y = r.col(1), z = r.col(2);
     const Vector6d xi = random.Twist(1.0);
-    auto eta_for = [&](JointType type) { return Joint(type, frame, PitchFor(type)).WorldProjector() * xi; };
+    auto eta_for = [&](JointType type) {
+      return Joint(type, frame, PitchFor(type)).WorldProjector() * xi;
+    };
     const double s = random.Uniform(-3.0, 3.0);
     const Eigen::Vector3d off_axis = o + random.Vector(2.0);
 
@@ -278,15 +286,17 @@ TEST(JointFrameTest, FramesFromParentGeometry) {
     const Eigen::Vector3d near = point + random.Vector(2.0);
     const Joint from_coeffs = Joint::FromPlaneCoefficients(coeffs, near);
     const Eigen::Vector3d origin = from_coeffs.world_from_joint().translation();
-    EXPECT_NEAR(unit.dot(origin) + d, 0.0, 1e-9);                         // on the plane
-    EXPECT_LT((near - origin).cross(unit).norm(), 1e-9);                  // straight below/above
-    EXPECT_LT((from_coeffs.WorldProjector() - plane.WorldProjector()).norm(), 1e-9);  // same planar joint
+    EXPECT_NEAR(unit.dot(origin) + d, 0.0, 1e-9);         // on the plane
+    EXPECT_LT((near - origin).cross(unit).norm(), 1e-9);  // straight below/above
+    EXPECT_LT((from_coeffs.WorldProjector() - plane.WorldProjector()).norm(),
+              1e-9);  // same planar joint
 
     const Joint axis = Joint::FromAxis(JointType::kHelical, direction, point, kPitch);
     EXPECT_LT((axis.world_from_joint().rotation().col(2) - unit).norm(), 1e-12);
     EXPECT_DOUBLE_EQ(axis.pitch(), kPitch);
     // Another point on the same axis gives the same world projector.
-    const Joint shifted = Joint::FromAxis(JointType::kHelical, -direction, point + 3.0 * unit, kPitch);
+    const Joint shifted =
+        Joint::FromAxis(JointType::kHelical, -direction, point + 3.0 * unit, kPitch);
     EXPECT_LT((shifted.WorldProjector() - axis.WorldProjector()).norm(), 1e-9);
 
     const Joint annular = Joint::FromAxis(JointType::kSphereCylinder, direction, point);

@@ -1,13 +1,13 @@
 // Every cost family: analytic == autodiff (residuals and tangent-space
 // Jacobians) and both == finite differences (ceres::GradientChecker) at many
 // seeded random points.
+#include <gtest/gtest.h>
+
+#include <Eigen/Core>
 #include <algorithm>
 #include <memory>
 #include <random>
 #include <vector>
-
-#include <Eigen/Core>
-#include <gtest/gtest.h>
 
 #include "ceres/gradient_checker.h"
 #include "ceres/manifold.h"
@@ -22,13 +22,13 @@
 namespace twist::optimization {
 namespace {
 
+using Eigen::MatrixXd;
+using Eigen::VectorXd;
 using geometry::Matrix6d;
 using geometry::SE3d;
 using geometry::SO3d;
 using geometry::StereoCamera;
 using geometry::Vector6d;
-using Eigen::MatrixXd;
-using Eigen::VectorXd;
 
 constexpr int kTrials = 25;
 
@@ -47,7 +47,9 @@ StereoCamera KittiLikeCamera() {
 class Random {
  public:
   explicit Random(unsigned seed) : rng_(seed) {}
-  double Uniform(double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng_); }
+  double Uniform(double lo, double hi) {
+    return std::uniform_real_distribution<double>(lo, hi)(rng_);
+  }
   Vector6d Twist(double scale) {
     Vector6d xi;
     for (int i = 0; i < 6; ++i) xi[i] = Uniform(-scale, scale);
@@ -111,11 +113,12 @@ Evaluation Evaluate(const ceres::CostFunction& cost,
   out.residuals.resize(num_residuals);
   EXPECT_TRUE(cost.Evaluate(param_ptrs.data(), out.residuals.data(), jac_ptrs.data()));
   for (size_t i = 0; i < sizes.size(); ++i) {
-    const MatrixXd ambient = Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>(
-        jac_storage[i].data(), num_residuals, sizes[i]);
+    const MatrixXd ambient =
+        Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>(
+            jac_storage[i].data(), num_residuals, sizes[i]);
     if (manifolds[i] != nullptr) {
-      Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> plus(manifolds[i]->AmbientSize(),
-                                                                                   manifolds[i]->TangentSize());
+      Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> plus(
+          manifolds[i]->AmbientSize(), manifolds[i]->TangentSize());
       EXPECT_TRUE(manifolds[i]->PlusJacobian(params[i].data(), plus.data()));
       out.local_jacobians.push_back(ambient * plus);
     } else {
@@ -126,12 +129,16 @@ Evaluation Evaluate(const ceres::CostFunction& cost,
 }
 
 // Relative comparison scaled by the magnitude of the reference.
-void ExpectNear(const MatrixXd& actual, const MatrixXd& expected, double rel_tol, const char* what) {
+void ExpectNear(const MatrixXd& actual,
+                const MatrixXd& expected,
+                double rel_tol,
+                const char* what) {
   ASSERT_EQ(actual.rows(), expected.rows()) << what;
   ASSERT_EQ(actual.cols(), expected.cols()) << what;
   const double scale = std::max(1.0, expected.cwiseAbs().maxCoeff());
-  EXPECT_LE((actual - expected).cwiseAbs().maxCoeff(), rel_tol * scale)
-      << what << "\nactual:\n" << actual << "\nexpected:\n" << expected;
+  EXPECT_LE((actual - expected).cwiseAbs().maxCoeff(), rel_tol * scale) << what << "\nactual:\n"
+                                                                        << actual << "\nexpected:\n"
+                                                                        << expected;
 }
 
 void ExpectAnalyticMatchesAutodiff(const ceres::CostFunction& analytic,
@@ -179,7 +186,8 @@ void CheckStaticReprojection(unsigned seed) {
     const SE3d camera_from_world = random.Pose(2.0);
     const Eigen::Vector3d p_w = camera_from_world.Inverse() * random.PointInCamera();
     const ObservationVector<N> observed =
-        ProjectToObservation<N>(camera, Eigen::Vector3d(camera_from_world * p_w)) + random.Noise<N>(3.0);
+        ProjectToObservation<N>(camera, Eigen::Vector3d(camera_from_world * p_w)) +
+        random.Noise<N>(3.0);
     const double sqrt_info = random.Uniform(0.3, 1.0);
     const std::vector<double> pose = PoseParams(camera_from_world);
     const std::vector<double> point(p_w.data(), p_w.data() + 3);
@@ -187,7 +195,8 @@ void CheckStaticReprojection(unsigned seed) {
     {
       SCOPED_TRACE("pose + point");
       ReprojectionCost<N> analytic(camera, observed, sqrt_info);
-      std::unique_ptr<ceres::CostFunction> autodiff(ReprojectionFunctor<N>::Create(camera, observed, sqrt_info));
+      std::unique_ptr<ceres::CostFunction> autodiff(
+          ReprojectionFunctor<N>::Create(camera, observed, sqrt_info));
       CheckCostPair(analytic, *autodiff, {pose, point}, {&se3, nullptr});
     }
     {
@@ -210,7 +219,8 @@ TEST(StaticReprojectionCostTest, StereoAnalyticMatchesAutodiffAndFiniteDifferenc
 
 TEST(StaticReprojectionCostTest, ResidualIsWeightedObservedMinusPredicted) {
   const StereoCamera camera = KittiLikeCamera();
-  const SE3d camera_from_world = SE3d::Exp((Vector6d() << 0.1, -0.2, 0.3, 0.05, -0.1, 0.2).finished());
+  const SE3d camera_from_world =
+      SE3d::Exp((Vector6d() << 0.1, -0.2, 0.3, 0.05, -0.1, 0.2).finished());
   const Eigen::Vector3d p_w(1.0, 0.5, 12.0);
   const Eigen::Vector3d p_c = camera_from_world * p_w;
   const Eigen::Vector3d predicted(camera.fx * p_c.x() / p_c.z() + camera.cx,
@@ -263,8 +273,12 @@ void CheckTwistTracking(unsigned seed) {
   }
 }
 
-TEST(TwistTrackingCostTest, MonoAnalyticMatchesAutodiffAndFiniteDifferences) { CheckTwistTracking<2>(21); }
-TEST(TwistTrackingCostTest, StereoAnalyticMatchesAutodiffAndFiniteDifferences) { CheckTwistTracking<3>(22); }
+TEST(TwistTrackingCostTest, MonoAnalyticMatchesAutodiffAndFiniteDifferences) {
+  CheckTwistTracking<2>(21);
+}
+TEST(TwistTrackingCostTest, StereoAnalyticMatchesAutodiffAndFiniteDifferences) {
+  CheckTwistTracking<3>(22);
+}
 
 // The paper's Kronecker-form Jacobian
 //   ∂π/∂p_c (X̄ᵀ ⊗ I₃)(I₄ ⊗ R_cw)(w_T_oᵀ ⊗ I₃) ∂exp Π
@@ -275,7 +289,8 @@ Eigen::Matrix<double, 2, 6> PaperTrackingJacobian(const TwistTrackingObservation
   auto kron = [](const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
     Eigen::MatrixXd out(a.rows() * b.rows(), a.cols() * b.cols());
     for (int i = 0; i < a.rows(); ++i)
-      for (int j = 0; j < a.cols(); ++j) out.block(i * b.rows(), j * b.cols(), b.rows(), b.cols()) = a(i, j) * b;
+      for (int j = 0; j < a.cols(); ++j)
+        out.block(i * b.rows(), j * b.cols(), b.rows(), b.cols()) = a(i, j) * b;
     return out;
   };
   Eigen::MatrixXd d_exp = Eigen::MatrixXd::Zero(12, 6);
@@ -286,11 +301,11 @@ Eigen::Matrix<double, 2, 6> PaperTrackingJacobian(const TwistTrackingObservation
   const Eigen::Matrix4d i4 = Eigen::Matrix4d::Identity();
   // Only the top 3x4 block of exp(·)·w_T_o·X̄ moves, so (w_T_oᵀ ⊗ I₃) acts on
   // vec of the 3x4 block.
-  const Eigen::MatrixXd m = kron(x_bar.transpose(), i3) *
-                            kron(i4, obs.camera_from_world.rotation()) *
-                            kron(obs.world_from_object_previous.matrix().transpose(), i3) * d_exp *
-                            obs.world_projector;
-  const Eigen::Vector3d p_c = obs.camera_from_world * (obs.world_from_object_previous * obs.point_in_object);
+  const Eigen::MatrixXd m =
+      kron(x_bar.transpose(), i3) * kron(i4, obs.camera_from_world.rotation()) *
+      kron(obs.world_from_object_previous.matrix().transpose(), i3) * d_exp * obs.world_projector;
+  const Eigen::Vector3d p_c =
+      obs.camera_from_world * (obs.world_from_object_previous * obs.point_in_object);
   // The residual is observed − predicted, hence the sign.
   return -obs.sqrt_information * ProjectionJacobian<2>(obs.camera, p_c) * m;
 }
@@ -337,14 +352,18 @@ void CheckDynamicReprojection(unsigned seed) {
     const Eigen::Vector3d p_c = random.PointInCamera();
     const Eigen::Vector3d p_o =
         (camera_from_world * SE3d::Exp(projector * xi) * world_from_object).Inverse() * p_c;
-    const ObservationVector<N> observed = ProjectToObservation<N>(camera, p_c) + random.Noise<N>(3.0);
+    const ObservationVector<N> observed =
+        ProjectToObservation<N>(camera, p_c) + random.Noise<N>(3.0);
     const double sqrt_info = random.Uniform(0.3, 1.0);
     DynamicReprojectionCost<N> analytic(camera, observed, sqrt_info, projector);
     std::unique_ptr<ceres::CostFunction> autodiff(
         DynamicReprojectionFunctor<N>::Create(camera, observed, sqrt_info, projector));
-    CheckCostPair(analytic, *autodiff,
-                  {PoseParams(camera_from_world), std::vector<double>(xi.data(), xi.data() + 6),
-                   PoseParams(world_from_object), std::vector<double>(p_o.data(), p_o.data() + 3)},
+    CheckCostPair(analytic,
+                  *autodiff,
+                  {PoseParams(camera_from_world),
+                   std::vector<double>(xi.data(), xi.data() + 6),
+                   PoseParams(world_from_object),
+                   std::vector<double>(p_o.data(), p_o.data() + 3)},
                   {&se3, nullptr, &se3, nullptr});
   }
 }
@@ -373,7 +392,8 @@ TEST(ConstantVelocityCostTest, AnalyticMatchesAutodiffAndFiniteDifferences) {
       pose = SE3d::Exp(random.Twist(0.6)) * pose;
     }
     ConstantVelocityCost analytic(projector, sqrt_weights);
-    std::unique_ptr<ceres::CostFunction> autodiff(ConstantVelocityFunctor::Create(projector, sqrt_weights));
+    std::unique_ptr<ceres::CostFunction> autodiff(
+        ConstantVelocityFunctor::Create(projector, sqrt_weights));
     CheckCostPair(analytic, *autodiff, params, {nullptr, &se3, nullptr, &se3, nullptr, &se3});
   }
 }

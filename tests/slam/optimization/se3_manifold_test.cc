@@ -1,9 +1,9 @@
 #include "slam/optimization/manifolds/se3_manifold.h"
 
-#include <random>
+#include <gtest/gtest.h>
 
 #include <Eigen/Core>
-#include <gtest/gtest.h>
+#include <random>
 
 #include "ceres/manifold_test_utils.h"
 #include "slam/geometry/se3.h"

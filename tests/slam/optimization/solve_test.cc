@@ -1,12 +1,12 @@
 // End-to-end use of the cost functions with Ceres: noise-free synthetic
 // problems solved from perturbed starts recover the ground truth. Exercises
 // the SE3 manifold, the analytic Jacobians and the joint projectors together.
+#include <gtest/gtest.h>
+
+#include <Eigen/Core>
 #include <array>
 #include <random>
 #include <vector>
-
-#include <Eigen/Core>
-#include <gtest/gtest.h>
 
 #include "ceres/loss_function.h"
 #include "ceres/problem.h"
@@ -42,7 +42,9 @@ StereoCamera Camera() {
 class Random {
  public:
   explicit Random(unsigned seed) : rng_(seed) {}
-  double Uniform(double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng_); }
+  double Uniform(double lo, double hi) {
+    return std::uniform_real_distribution<double>(lo, hi)(rng_);
+  }
   Vector6d Twist(double scale) {
     Vector6d xi;
     for (int i = 0; i < 6; ++i) xi[i] = Uniform(-scale, scale);
@@ -77,13 +79,16 @@ TEST(SolveTest, PoseOnlyStereoRecoversCameraPose) {
       const double z = random.Uniform(4.0, 40.0);
       const Eigen::Vector3d p_c(random.Uniform(-0.7, 0.7) * z, random.Uniform(-0.25, 0.25) * z, z);
       const Eigen::Vector3d p_w = truth.Inverse() * p_c;
-      problem.AddResidualBlock(new StereoPoseOnlyReprojectionCost(camera, camera.ProjectStereo(p_c), 1.0, p_w),
-                               new ceres::HuberLoss(2.0), pose);
+      problem.AddResidualBlock(
+          new StereoPoseOnlyReprojectionCost(camera, camera.ProjectStereo(p_c), 1.0, p_w),
+          new ceres::HuberLoss(2.0),
+          pose);
     }
     ceres::Solver::Summary summary;
     ceres::Solve(SolverOptions(), &problem, &summary);
     ASSERT_TRUE(summary.IsSolutionUsable()) << summary.BriefReport();
-    EXPECT_LT((SE3d::FromParams(pose).Inverse() * truth).Log().norm(), 1e-8) << summary.BriefReport();
+    EXPECT_LT((SE3d::FromParams(pose).Inverse() * truth).Log().norm(), 1e-8)
+        << summary.BriefReport();
   }
 }
 
@@ -91,12 +96,13 @@ TEST(SolveTest, PlanarTwistTrackingRecoversConstrainedMotion) {
   Random random(2);
   const StereoCamera camera = Camera();
   // Road plane y = 1.6 below the camera (KITTI: y down), normal -y.
-  const joints::Joint joint = joints::Joint::FromPlaneCoefficients(Eigen::Vector4d(0.0, -1.0, 0.0, 1.6),
-                                                                   Eigen::Vector3d(2.0, 1.6, 15.0));
+  const joints::Joint joint = joints::Joint::FromPlaneCoefficients(
+      Eigen::Vector4d(0.0, -1.0, 0.0, 1.6), Eigen::Vector3d(2.0, 1.6, 15.0));
   const Matrix6d projector = joint.WorldProjector();
   for (int trial = 0; trial < 5; ++trial) {
     const SE3d camera_from_world = SE3d::Exp(0.05 * random.Twist(1.0));
-    const SE3d world_from_object(Eigen::Matrix3d::Identity(), Eigen::Vector3d(random.Uniform(-3, 3), 1.0, 15.0));
+    const SE3d world_from_object(Eigen::Matrix3d::Identity(),
+                                 Eigen::Vector3d(random.Uniform(-3, 3), 1.0, 15.0));
     Vector6d motion = random.Twist(0.5);
     motion = projector * motion;  // allowed motion: in-plane translation + yaw
     const SE3d world_from_object_now = SE3d::Exp(motion) * world_from_object;
@@ -108,9 +114,12 @@ TEST(SolveTest, PlanarTwistTrackingRecoversConstrainedMotion) {
       obs.camera_from_world = camera_from_world;
       obs.world_from_object_previous = world_from_object;
       obs.world_projector = projector;
-      obs.point_in_object = Eigen::Vector3d(random.Uniform(-1, 1), random.Uniform(-0.7, 0.5), random.Uniform(-2, 2));
-      obs.observed = camera.ProjectStereo(Eigen::Vector3d(camera_from_world * (world_from_object_now * obs.point_in_object)));
-      problem.AddResidualBlock(new StereoTwistTrackingCost(obs), new ceres::HuberLoss(2.0), xi.data());
+      obs.point_in_object =
+          Eigen::Vector3d(random.Uniform(-1, 1), random.Uniform(-0.7, 0.5), random.Uniform(-2, 2));
+      obs.observed = camera.ProjectStereo(
+          Eigen::Vector3d(camera_from_world * (world_from_object_now * obs.point_in_object)));
+      problem.AddResidualBlock(
+          new StereoTwistTrackingCost(obs), new ceres::HuberLoss(2.0), xi.data());
     }
     ceres::Solver::Summary summary;
     ceres::Solve(SolverOptions(), &problem, &summary);
@@ -128,8 +137,8 @@ TEST(SolveTest, DynamicWindowWithConstantVelocityRecoversTwists) {
   // fixed at a wrong linearisation point, corrected through ξ̃ only.
   Random random(3);
   const StereoCamera camera = Camera();
-  const joints::Joint joint = joints::Joint::FromPlane(joints::JointType::kPlanar, Eigen::Vector3d(0, -1, 0),
-                                                       Eigen::Vector3d(0, 1.6, 0));
+  const joints::Joint joint = joints::Joint::FromPlane(
+      joints::JointType::kPlanar, Eigen::Vector3d(0, -1, 0), Eigen::Vector3d(0, 1.6, 0));
   const Matrix6d projector = joint.WorldProjector();
   const Vector6d velocity = projector * (Vector6d() << 0.8, 0.0, 0.3, 0.0, 0.05, 0.0).finished();
   std::vector<SE3d> truth = {SE3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(-2.0, 1.0, 14.0))};
@@ -145,7 +154,8 @@ TEST(SolveTest, DynamicWindowWithConstantVelocityRecoversTwists) {
   std::vector<std::array<double, 7>> cameras(3);
   for (int k = 0; k < 3; ++k) {
     // Linearisation point: truth moved by an allowed error, to be undone by ξ̃.
-    (SE3d::Exp(projector * (0.05 * random.Twist(1.0))).Inverse() * truth[k]).ToParams(poses[k].data());
+    (SE3d::Exp(projector * (0.05 * random.Twist(1.0))).Inverse() * truth[k])
+        .ToParams(poses[k].data());
     SE3d().ToParams(cameras[k].data());
     problem.AddParameterBlock(cameras[k].data(), 7, new SE3Manifold);
     problem.SetParameterBlockConstant(cameras[k].data());
@@ -155,19 +165,30 @@ TEST(SolveTest, DynamicWindowWithConstantVelocityRecoversTwists) {
       problem.AddParameterBlock(p_o.data(), 3);
       problem.SetParameterBlockConstant(p_o.data());
       problem.AddResidualBlock(
-          new StereoDynamicReprojectionCost(camera, camera.ProjectStereo(Eigen::Vector3d(truth[k] * p_o)), 1.0,
-                                            projector),
-          nullptr, cameras[k].data(), twists[k].data(), poses[k].data(), p_o.data());
+          new StereoDynamicReprojectionCost(
+              camera, camera.ProjectStereo(Eigen::Vector3d(truth[k] * p_o)), 1.0, projector),
+          nullptr,
+          cameras[k].data(),
+          twists[k].data(),
+          poses[k].data(),
+          p_o.data());
     }
   }
-  problem.AddResidualBlock(new ConstantVelocityCost(projector, Vector6d::Constant(10.0)), nullptr, twists[0].data(),
-                           poses[0].data(), twists[1].data(), poses[1].data(), twists[2].data(), poses[2].data());
+  problem.AddResidualBlock(new ConstantVelocityCost(projector, Vector6d::Constant(10.0)),
+                           nullptr,
+                           twists[0].data(),
+                           poses[0].data(),
+                           twists[1].data(),
+                           poses[1].data(),
+                           twists[2].data(),
+                           poses[2].data());
   ceres::Solver::Summary summary;
   ceres::Solve(SolverOptions(), &problem, &summary);
   ASSERT_TRUE(summary.IsSolutionUsable()) << summary.BriefReport();
   for (int k = 0; k < 3; ++k) {
     const SE3d corrected = SE3d::Exp(projector * twists[k]) * SE3d::FromParams(poses[k].data());
-    EXPECT_LT((corrected.Inverse() * truth[k]).Log().norm(), 1e-8) << k << " " << summary.BriefReport();
+    EXPECT_LT((corrected.Inverse() * truth[k]).Log().norm(), 1e-8)
+        << k << " " << summary.BriefReport();
   }
 }
 
