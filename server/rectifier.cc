@@ -86,8 +86,11 @@ absl::StatusOr<StereoRectifier> StereoRectifier::Create(const RawStereoRig& rig)
     return absl::InvalidArgumentError(absl::StrCat("unrectified rig: rectified camera invalid: ", s.message()));
   }
   out.k_left_ = k1;
-  r1.copyTo(cv::Mat(out.r_left_));
-  p1.copyTo(cv::Mat(out.p_left_));
+  out.r_left_ = cv::Matx33d(r1);
+  out.p_left_ = cv::Matx34d(p1);
+  // Float maps for the mask: nearest-neighbour sampling must round, which the
+  // fixed-point maps (truncation) do not.
+  cv::initUndistortRectifyMap(k1, d1, r1, p1, size, CV_32FC1, out.mask_map_x_, out.mask_map_y_);
   out.dist_left_ = rig.left.distortion;
   return out;
 }
@@ -100,7 +103,7 @@ void StereoRectifier::Rectify(StereoFrame* frame) const {
   frame->right = right;
   if (!frame->panoptic.empty()) {
     cv::Mat mask;
-    cv::remap(frame->panoptic, mask, left_map1_, left_map2_, cv::INTER_NEAREST);
+    cv::remap(frame->panoptic, mask, mask_map_x_, mask_map_y_, cv::INTER_NEAREST);
     frame->panoptic = mask;
   }
   if (!frame->boxes.empty()) {

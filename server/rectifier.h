@@ -45,6 +45,7 @@ class StereoRectifier {
  private:
   geometry::StereoCamera rectified_;
   cv::Mat left_map1_, left_map2_, right_map1_, right_map2_;
+  cv::Mat mask_map_x_, mask_map_y_;
   cv::Matx33d k_left_, r_left_;
   cv::Matx34d p_left_;
   std::vector<double> dist_left_;

@@ -165,6 +165,16 @@ grpc::Status SlamServiceImpl::Stream(grpc::ServerContext* context,
       write_failed = true;
       queue.Abort();
       context->TryCancel();
+    } else if (handle.taken_over) {
+      // Tell the client why before ending the call (a cancelled call reaches
+      // the client as CANCELLED, which it would take for a network failure).
+      pb::StreamResponse notice;
+      FillError(-1, 0,
+                absl::AbortedError(absl::StrCat("stream taken over by a newer stream for session '",
+                                                session->id(), "'")),
+                &notice);
+      stream->Write(notice);
+      context->TryCancel();
     }
   });
 

@@ -300,12 +300,16 @@ absl::Status Session::Bind(StreamHandle* handle, absl::Duration wait) {
   if (closed_) return absl::FailedPreconditionError(absl::StrCat("session ", id_, " is closed"));
   if (bound_ != nullptr) {
     LOG(INFO) << "session " << id_ << ": a new stream takes over from the bound one";
+    // The old stream's worker stops, tells its client and ends the call; if
+    // it is stuck writing to a client that does not read, cancel the call.
     bound_->taken_over = true;
     bound_->queue->Abort();
-    bound_->context->TryCancel();
     auto released = [this]() ABSL_SHARED_LOCKS_REQUIRED(mu_) { return bound_ == nullptr || closed_; };
-    if (!mu_.AwaitWithTimeout(absl::Condition(&released), wait)) {
-      return absl::UnavailableError(absl::StrCat("session ", id_, " is busy: the previous stream did not end"));
+    if (!mu_.AwaitWithTimeout(absl::Condition(&released), absl::Seconds(2))) {
+      bound_->context->TryCancel();
+      if (!mu_.AwaitWithTimeout(absl::Condition(&released), wait)) {
+        return absl::UnavailableError(absl::StrCat("session ", id_, " is busy: the previous stream did not end"));
+      }
     }
     if (closed_) return absl::FailedPreconditionError(absl::StrCat("session ", id_, " is closed"));
   }

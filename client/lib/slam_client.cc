@@ -250,6 +250,10 @@ void SlamClient::ReaderLoop(grpc::ClientReaderWriter<pb::StreamRequest, pb::Stre
         }
       } else if (response.has_error()) {
         ack(response.error().index(), response.error().timestamp_ns());
+        if (response.error().index() == -1 &&
+            response.error().code() == static_cast<int>(grpc::StatusCode::ABORTED)) {
+          aborted_message_ = response.error().message();
+        }
       } else if (response.has_dropped()) {
         for (int64_t index : response.dropped().indices()) {
           auto it = std::find_if(unacked_.begin(), unacked_.end(), [&](const Pending& p) { return p.index == index; });
@@ -272,6 +276,12 @@ grpc::Status SlamClient::FinishStream() {
   grpc::Status s = stream_ ? stream_->Finish() : grpc::Status(grpc::StatusCode::FAILED_PRECONDITION, "no stream");
   stream_.reset();
   context_.reset();
+  std::lock_guard<std::mutex> lock(mu_);
+  if (!aborted_message_.empty()) {
+    // Taken over by another stream: permanent, never reconnect.
+    s = grpc::Status(grpc::StatusCode::ABORTED, aborted_message_);
+    aborted_message_.clear();
+  }
   return s;
 }
 

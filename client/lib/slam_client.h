@@ -135,6 +135,7 @@ class SlamClient {
   pb::SessionInfo bound_;                     // guarded by mu_
   int replay_left_ = 0;                       // guarded by mu_
   int reconnects_ = 0;                        // guarded by mu_
+  std::string aborted_message_;               // guarded by mu_: server said "taken over"
 };
 
 }  // namespace twist::client
