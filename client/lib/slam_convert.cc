@@ -1,0 +1,163 @@
+#include "client/lib/slam_convert.h"
+
+namespace twist::client {
+namespace {
+
+geometry::Vector6d TwistFromProto(const pb::Twist& t) {
+  geometry::Vector6d xi;
+  xi << t.linear().x(), t.linear().y(), t.linear().z(), t.angular().x(), t.angular().y(), t.angular().z();
+  return xi;
+}
+
+std::string JointName(pb::JointType type) {
+  const int v = static_cast<int>(type);
+  if (v < 1 || v > joints::kNumJointTypes) return "";
+  return joints::JointTypeName(static_cast<joints::JointType>(v - 1));
+}
+
+}  // namespace
+
+geometry::SE3d PoseFromProto(const pb::Pose& pose) {
+  Eigen::Quaterniond q(pose.rotation().w(), pose.rotation().x(), pose.rotation().y(), pose.rotation().z());
+  if (q.norm() < 1e-12) q = Eigen::Quaterniond::Identity();
+  return geometry::SE3d(q.normalized(),
+                        Eigen::Vector3d(pose.translation().x(), pose.translation().y(), pose.translation().z()));
+}
+
+pb::SessionConfig SessionConfigToProto(const SessionConfig& config) {
+  pb::SessionConfig out;
+  pb::StereoCalibration* c = out.mutable_calibration();
+  c->set_fx(config.camera.fx);
+  c->set_fy(config.camera.fy);
+  c->set_cx(config.camera.cx);
+  c->set_cy(config.camera.cy);
+  c->set_baseline(config.camera.baseline);
+  c->set_width(config.camera.width);
+  c->set_height(config.camera.height);
+  for (const joints::ClassInfo& info : config.classes.classes()) {
+    pb::SemanticClass* sc = out.mutable_class_table()->add_classes();
+    sc->set_id(info.id);
+    sc->set_name(info.name);
+    sc->set_is_dynamic(info.is_dynamic);
+    sc->set_fit_plane(info.fit_plane);
+    if (info.parent_id >= 0) {
+      pb::JointEdge* e = out.mutable_class_table()->add_joints();
+      e->set_child_class_id(info.id);
+      e->set_parent_class_id(info.parent_id);
+      e->set_joint_type(static_cast<pb::JointType>(static_cast<int>(info.joint) + 1));
+      e->set_pitch(info.pitch);
+    }
+  }
+  const SlamOptions& o = config.options;
+  pb::SlamOptions* po = out.mutable_options();
+  po->set_num_features(o.num_features);
+  po->set_num_levels(o.num_levels);
+  po->set_scale_factor(o.scale_factor);
+  po->set_fast_threshold(o.fast_threshold);
+  po->set_max_depth_baselines(o.max_depth_baselines);
+  po->set_mapping_mode(o.mapping_mode == MappingMode::kBackground ? pb::MAPPING_MODE_BACKGROUND
+                                                                  : pb::MAPPING_MODE_SYNCHRONOUS);
+  po->set_local_ba_iterations(o.local_ba_iterations);
+  po->set_num_threads(o.num_threads);
+  po->set_use_masks(o.use_masks);
+  po->set_track_objects(o.track_objects);
+  po->set_constrain_objects(o.constrain_objects);
+  po->set_temporal_window_s(o.temporal_window_s);
+  po->set_seed(o.seed);
+  return out;
+}
+
+FrameResult FrameResultFromProto(const pb::FrameUpdate& u) {
+  FrameResult r;
+  r.index = u.index();
+  r.timestamp_ns = u.timestamp_ns();
+  switch (u.tracking_state()) {
+    case pb::TRACKING_STATE_OK:
+      r.state = TrackingState::kOk;
+      break;
+    case pb::TRACKING_STATE_LOST:
+      r.state = TrackingState::kLost;
+      break;
+    case pb::TRACKING_STATE_RELOCALIZED:
+      r.state = TrackingState::kRelocalized;
+      break;
+    default:
+      r.state = TrackingState::kNotInitialized;
+  }
+  r.world_from_camera = PoseFromProto(u.world_from_camera());
+  r.is_keyframe = u.is_keyframe();
+  r.num_tracked_points = u.num_tracked_points();
+  r.num_map_points = u.num_map_points();
+  r.num_keyframes = u.num_keyframes();
+  for (const pb::ObjectUpdate& o : u.objects()) {
+    ObjectResult obj;
+    obj.id = o.id();
+    obj.class_id = o.class_id();
+    obj.instance_id = o.instance_id();
+    obj.state = o.state() == pb::OBJECT_STATE_TRACKED ? ObjectState::kTracked
+                : o.state() == pb::OBJECT_STATE_LOST  ? ObjectState::kLost
+                                                      : ObjectState::kNew;
+    obj.world_from_object = PoseFromProto(o.world_from_object());
+    obj.twist_in_world = TwistFromProto(o.twist_in_world());
+    obj.twist_in_joint = TwistFromProto(o.twist_in_joint());
+    obj.speed_mps = o.speed_mps();
+    obj.joint = JointName(o.joint_type());
+    obj.num_points = o.num_points();
+    r.objects.push_back(obj);
+  }
+  for (const pb::ClusterEvent& e : u.cluster_events()) {
+    ClusterEvent ev;
+    switch (e.type()) {
+      case pb::CLUSTER_EVENT_TYPE_PLANE_UPDATED:
+        ev.type = ClusterEventType::kPlaneUpdated;
+        break;
+      case pb::CLUSTER_EVENT_TYPE_LOST:
+        ev.type = ClusterEventType::kLost;
+        break;
+      case pb::CLUSTER_EVENT_TYPE_REMOVED:
+        ev.type = ClusterEventType::kRemoved;
+        break;
+      default:
+        ev.type = ClusterEventType::kCreated;
+    }
+    ev.cluster_id = e.cluster_id();
+    ev.class_id = e.class_id();
+    ev.instance_id = e.instance_id();
+    ev.is_dynamic = e.is_dynamic();
+    if (e.has_plane()) ev.plane = Eigen::Vector4d(e.plane().a(), e.plane().b(), e.plane().c(), e.plane().d());
+    r.cluster_events.push_back(ev);
+  }
+  for (const pb::StageTiming& t : u.timings()) r.timings.push_back({t.stage(), t.ms()});
+  return r;
+}
+
+MapSnapshot MapFromChunks(const std::vector<pb::MapChunk>& chunks) {
+  MapSnapshot map;
+  for (const pb::MapChunk& chunk : chunks) {
+    for (const pb::MapPoint& p : chunk.points()) {
+      MapSnapshot::Point point;
+      point.p_in_world = Eigen::Vector3d(p.x(), p.y(), p.z());
+      point.class_id = p.class_id();
+      point.cluster_id = p.cluster_id();
+      map.points.push_back(point);
+    }
+    for (const pb::KeyFrame& k : chunk.keyframes()) {
+      map.keyframes.push_back({k.id(), k.timestamp_ns(), PoseFromProto(k.world_from_camera())});
+    }
+    for (const pb::Cluster& c : chunk.clusters()) {
+      MapSnapshot::Cluster cluster;
+      cluster.id = c.id();
+      cluster.class_id = c.class_id();
+      cluster.instance_id = c.instance_id();
+      cluster.is_dynamic = c.is_dynamic();
+      if (c.has_plane()) cluster.plane = Eigen::Vector4d(c.plane().a(), c.plane().b(), c.plane().c(), c.plane().d());
+      for (const pb::TimedPose& t : c.trajectory()) {
+        cluster.trajectory.emplace_back(t.timestamp_ns(), PoseFromProto(t.world_from_object()));
+      }
+      map.clusters.push_back(std::move(cluster));
+    }
+  }
+  return map;
+}
+
+}  // namespace twist::client
