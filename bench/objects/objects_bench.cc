@@ -19,12 +19,11 @@
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
+#include <opencv2/imgproc.hpp>
 #include <random>
 #include <sstream>
 #include <string>
 #include <vector>
-
-#include <opencv2/imgproc.hpp>
 
 #include "slam/common/timer.h"
 #include "slam/objects/dynamic_ba.h"
@@ -50,14 +49,15 @@ double ThreadCpuMs() {
 double Percentile(std::vector<double> v, double p) {
   if (v.empty()) return 0.0;
   std::sort(v.begin(), v.end());
-  const size_t i = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size() - 1) + 0.5));
+  const size_t i =
+      std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size() - 1) + 0.5));
   return v[i];
 }
 
 std::string Stats(const std::vector<double>& v) {
   std::ostringstream s;
-  s << "{\"median\": " << Percentile(v, 0.5) << ", \"p95\": " << Percentile(v, 0.95) << ", \"n\": " << v.size()
-    << "}";
+  s << "{\"median\": " << Percentile(v, 0.5) << ", \"p95\": " << Percentile(v, 0.95)
+    << ", \"n\": " << v.size() << "}";
   return s.str();
 }
 
@@ -67,7 +67,8 @@ ObjectFrameInput Merge(std::vector<ObjectFrameInput> frames) {
   for (size_t k = 1; k < frames.size(); ++k) {
     const ObjectFrameInput& f = frames[k];
     out.keypoints.uv.insert(out.keypoints.uv.end(), f.keypoints.uv.begin(), f.keypoints.uv.end());
-    out.keypoints.u_right.insert(out.keypoints.u_right.end(), f.keypoints.u_right.begin(), f.keypoints.u_right.end());
+    out.keypoints.u_right.insert(
+        out.keypoints.u_right.end(), f.keypoints.u_right.begin(), f.keypoints.u_right.end());
     out.keypoints.descriptors.push_back(f.keypoints.descriptors);
     out.detections.insert(out.detections.end(), f.detections.begin(), f.detections.end());
     for (int y = 0; y < f.flow.rows; ++y) {
@@ -89,7 +90,8 @@ struct RunResult {
 RunResult Run(int num_cars, int frames, int window, int ba_iterations) {
   std::vector<CarSequence> cars;
   const double lateral[5] = {3.0, -3.0, 6.5, -6.5, 0.0};
-  for (int c = 0; c < num_cars; ++c) cars.emplace_back(0.5, 100 + static_cast<uint64_t>(c), lateral[c], 60);
+  for (int c = 0; c < num_cars; ++c)
+    cars.emplace_back(0.5, 100 + static_cast<uint64_t>(c), lateral[c], 60);
   ObjectTracker tracker(cars[0].camera(), ObjectTrackerOptions{});
   // Static street points for the BA.
   std::mt19937_64 rng(7);
@@ -104,7 +106,8 @@ RunResult Run(int num_cars, int frames, int window, int ba_iterations) {
   RunResult r;
   for (int i = 0; i < frames; ++i) {
     std::vector<ObjectFrameInput> parts;
-    for (int c = 0; c < num_cars; ++c) parts.push_back(cars[static_cast<size_t>(c)].Next(c + 1, true));
+    for (int c = 0; c < num_cars; ++c)
+      parts.push_back(cars[static_cast<size_t>(c)].Next(c + 1, true));
     ObjectFrameInput frame = Merge(std::move(parts));
     twist::Stopwatch sw;
     const double cpu0 = ThreadCpuMs();
@@ -112,7 +115,8 @@ RunResult Run(int num_cars, int frames, int window, int ba_iterations) {
     const double ms = sw.ElapsedMs();
     const double cpu_ms = ThreadCpuMs() - cpu0;
     if (!results.ok()) {
-      std::fprintf(stderr, "tracking failed: %s\n", std::string(results.status().message()).c_str());
+      std::fprintf(
+          stderr, "tracking failed: %s\n", std::string(results.status().message()).c_str());
       std::exit(1);
     }
     if (i > 0) {
@@ -146,7 +150,8 @@ RunResult Run(int num_cars, int frames, int window, int ba_iterations) {
       problem.points.push_back(sp);
       for (size_t k = 0; k < problem.keyframes.size(); ++k) {
         Eigen::Vector3d uvr;
-        if (!problem.camera.ProjectStereoChecked(problem.keyframes[k].camera_from_world * street[j], &uvr, nullptr, 1.0) ||
+        if (!problem.camera.ProjectStereoChecked(
+                problem.keyframes[k].camera_from_world * street[j], &uvr, nullptr, 1.0) ||
             !problem.camera.InImage(uvr.head<2>(), 5) || uvr.z() < 0) {
           continue;
         }
@@ -158,7 +163,8 @@ RunResult Run(int num_cars, int frames, int window, int ba_iterations) {
         problem.observations.push_back(o);
       }
     }
-    const auto links = AddTrackedObjectsToBa(tracker, keyframe_of_frame, ObjectBaOptions{}, &problem);
+    const auto links =
+        AddTrackedObjectsToBa(tracker, keyframe_of_frame, ObjectBaOptions{}, &problem);
     DynamicBaOptions options;
     options.max_iterations = ba_iterations;
     twist::Stopwatch solve;
@@ -199,34 +205,53 @@ int main(int argc, char** argv) {
     } else if (a == "--json" && has_value) {
       json_path = argv[++i];
     } else {
-      std::fprintf(stderr, "usage: objects_bench [--frames N] [--window W] [--ba-iterations K] [--json FILE]\n");
+      std::fprintf(
+          stderr,
+          "usage: objects_bench [--frames N] [--window W] [--ba-iterations K] [--json FILE]\n");
       return 2;
     }
   }
   if (frames < 2 || window < 3 || window > frames || ba_iterations < 1) {
-    std::fprintf(stderr, "objects_bench: need frames >= 2, 3 <= window <= frames, ba-iterations >= 1\n");
+    std::fprintf(stderr,
+                 "objects_bench: need frames >= 2, 3 <= window <= frames, ba-iterations >= 1\n");
     return 2;
   }
   std::ostringstream json;
-  json << "{\"frames\": " << frames << ", \"window\": " << window << ", \"ba_iterations\": " << ba_iterations;
+  json << "{\"frames\": " << frames << ", \"window\": " << window
+       << ", \"ba_iterations\": " << ba_iterations;
   for (int cars : {1, 5}) {
     const RunResult r = Run(cars, frames, window, ba_iterations);
-    std::printf("%d object(s): tracking %.2f ms/object (p95 %.2f; CPU %.2f, p95 %.2f), %.2f ms/frame (p95 %.2f); "
-                "dynamic BA solve %.1f ms (p95 %.1f; CPU %.1f, p95 %.1f), build+solve %.1f ms (p95 %.1f) "
-                "[%d static, %d dynamic, %d const-velocity terms]\n",
-                cars, Percentile(r.track_ms_per_object, 0.5), Percentile(r.track_ms_per_object, 0.95),
-                Percentile(r.track_cpu_ms_per_object, 0.5), Percentile(r.track_cpu_ms_per_object, 0.95),
-                Percentile(r.track_ms_per_frame, 0.5), Percentile(r.track_ms_per_frame, 0.95),
-                Percentile(r.ba_solve_ms, 0.5), Percentile(r.ba_solve_ms, 0.95), Percentile(r.ba_solve_cpu_ms, 0.5),
-                Percentile(r.ba_solve_cpu_ms, 0.95), Percentile(r.ba_total_ms, 0.5),
-                Percentile(r.ba_total_ms, 0.95), r.ba_terms_static, r.ba_terms_dynamic, r.ba_terms_cv);
-    json << ", \"objects_" << cars << "\": {\"track_ms_per_object\": " << Stats(r.track_ms_per_object)
+    std::printf(
+        "%d object(s): tracking %.2f ms/object (p95 %.2f; CPU %.2f, p95 %.2f), %.2f ms/frame (p95 "
+        "%.2f); "
+        "dynamic BA solve %.1f ms (p95 %.1f; CPU %.1f, p95 %.1f), build+solve %.1f ms (p95 %.1f) "
+        "[%d static, %d dynamic, %d const-velocity terms]\n",
+        cars,
+        Percentile(r.track_ms_per_object, 0.5),
+        Percentile(r.track_ms_per_object, 0.95),
+        Percentile(r.track_cpu_ms_per_object, 0.5),
+        Percentile(r.track_cpu_ms_per_object, 0.95),
+        Percentile(r.track_ms_per_frame, 0.5),
+        Percentile(r.track_ms_per_frame, 0.95),
+        Percentile(r.ba_solve_ms, 0.5),
+        Percentile(r.ba_solve_ms, 0.95),
+        Percentile(r.ba_solve_cpu_ms, 0.5),
+        Percentile(r.ba_solve_cpu_ms, 0.95),
+        Percentile(r.ba_total_ms, 0.5),
+        Percentile(r.ba_total_ms, 0.95),
+        r.ba_terms_static,
+        r.ba_terms_dynamic,
+        r.ba_terms_cv);
+    json << ", \"objects_" << cars
+         << "\": {\"track_ms_per_object\": " << Stats(r.track_ms_per_object)
          << ", \"track_cpu_ms_per_object\": " << Stats(r.track_cpu_ms_per_object)
-         << ", \"track_ms_per_frame\": " << Stats(r.track_ms_per_frame) << ", \"ba_solve_ms\": " << Stats(r.ba_solve_ms)
+         << ", \"track_ms_per_frame\": " << Stats(r.track_ms_per_frame)
+         << ", \"ba_solve_ms\": " << Stats(r.ba_solve_ms)
          << ", \"ba_solve_cpu_ms\": " << Stats(r.ba_solve_cpu_ms)
-         << ", \"ba_build_solve_ms\": " << Stats(r.ba_total_ms) << ", \"ba_static_terms\": " << r.ba_terms_static
-         << ", \"ba_dynamic_terms\": " << r.ba_terms_dynamic << ", \"ba_const_velocity_terms\": " << r.ba_terms_cv
-         << "}";
+         << ", \"ba_build_solve_ms\": " << Stats(r.ba_total_ms)
+         << ", \"ba_static_terms\": " << r.ba_terms_static
+         << ", \"ba_dynamic_terms\": " << r.ba_terms_dynamic
+         << ", \"ba_const_velocity_terms\": " << r.ba_terms_cv << "}";
   }
   // Sparse LK on a textured image: 60 points, like one car without client flow.
   {
@@ -250,7 +275,8 @@ int main(int argc, char** argv) {
       lk.push_back(sw.ElapsedMs());
       if (!t.ok()) return 1;
     }
-    std::printf("sparse LK (forward-backward), 60 points, 1241x376: %.2f ms (p95 %.2f)\n", Percentile(lk, 0.5),
+    std::printf("sparse LK (forward-backward), 60 points, 1241x376: %.2f ms (p95 %.2f)\n",
+                Percentile(lk, 0.5),
                 Percentile(lk, 0.95));
     json << ", \"sparse_flow_60_points_ms\": " << Stats(lk);
   }

@@ -1,14 +1,14 @@
 #include "slam/objects/dynamic_ba.h"
 
-#include <algorithm>
-#include <array>
-#include <optional>
-#include <cmath>
-#include <memory>
-#include <unordered_map>
-
 #include <ceres/ceres.h>
 #include <glog/logging.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <memory>
+#include <optional>
+#include <unordered_map>
 
 #include "slam/objects/subspace_manifold.h"
 #include "slam/objects/twist_estimator.h"
@@ -25,14 +25,21 @@ using geometry::Vector6d;
 
 namespace {
 
-std::string Where(const char* what, size_t i) { return std::string(what) + " " + std::to_string(i); }
+std::string Where(const char* what, size_t i) {
+  return std::string(what) + " " + std::to_string(i);
+}
 
-absl::Status CheckObservation(const BaObservation& o, int num_keyframes, int num_points, const std::string& where) {
+absl::Status CheckObservation(const BaObservation& o,
+                              int num_keyframes,
+                              int num_points,
+                              const std::string& where) {
   if (o.keyframe < 0 || o.keyframe >= num_keyframes) {
-    return absl::InvalidArgumentError(where + ": keyframe index " + std::to_string(o.keyframe) + " out of range");
+    return absl::InvalidArgumentError(where + ": keyframe index " + std::to_string(o.keyframe) +
+                                      " out of range");
   }
   if (o.point < 0 || o.point >= num_points) {
-    return absl::InvalidArgumentError(where + ": point index " + std::to_string(o.point) + " out of range");
+    return absl::InvalidArgumentError(where + ": point index " + std::to_string(o.point) +
+                                      " out of range");
   }
   if (!(o.sigma_px > 0.0) || !o.uv.allFinite()) {
     return absl::InvalidArgumentError(where + ": needs a finite uv and sigma_px > 0");
@@ -57,7 +64,8 @@ std::optional<double> DynamicResidual(const geometry::StereoCamera& cam,
                                       const BaObservation& o,
                                       std::vector<double>* comps) {
   Eigen::Vector3d uvr;
-  if (!cam.ProjectStereoChecked(camera_from_world * (world_from_object * p_o), &uvr, nullptr, 1e-3)) {
+  if (!cam.ProjectStereoChecked(
+          camera_from_world * (world_from_object * p_o), &uvr, nullptr, 1e-3)) {
     return std::nullopt;
   }
   comps->push_back(o.uv.x() - uvr.x());
@@ -72,8 +80,8 @@ absl::Status DynamicBaProblem::Validate() const {
   if (absl::Status s = camera.Validate(); !s.ok()) return s;
   const int nk = static_cast<int>(keyframes.size());
   for (size_t i = 0; i < observations.size(); ++i) {
-    if (absl::Status s = CheckObservation(observations[i], nk, static_cast<int>(points.size()),
-                                          Where("static observation", i));
+    if (absl::Status s = CheckObservation(
+            observations[i], nk, static_cast<int>(points.size()), Where("static observation", i));
         !s.ok()) {
       return s;
     }
@@ -83,7 +91,8 @@ absl::Status DynamicBaProblem::Validate() const {
     std::vector<bool> has_frame(keyframes.size(), false);
     for (const BaObjectFrame& f : obj.frames) {
       if (f.keyframe < 0 || f.keyframe >= nk) {
-        return absl::InvalidArgumentError(Where("object", k) + ": frame keyframe index out of range");
+        return absl::InvalidArgumentError(Where("object", k) +
+                                          ": frame keyframe index out of range");
       }
       if (has_frame[static_cast<size_t>(f.keyframe)]) {
         return absl::InvalidArgumentError(Where("object", k) + ": two poses in one keyframe");
@@ -93,7 +102,9 @@ absl::Status DynamicBaProblem::Validate() const {
     for (size_t i = 0; i < obj.observations.size(); ++i) {
       const BaObservation& o = obj.observations[i];
       const std::string where = Where("object", k) + " " + Where("observation", i);
-      if (absl::Status s = CheckObservation(o, nk, static_cast<int>(obj.points_in_object.size()), where); !s.ok()) {
+      if (absl::Status s =
+              CheckObservation(o, nk, static_cast<int>(obj.points_in_object.size()), where);
+          !s.ok()) {
         return s;
       }
       if (!has_frame[static_cast<size_t>(o.keyframe)]) {
@@ -122,12 +133,15 @@ bool InTemporalWindow(int64_t timestamp_ns, int64_t newest_timestamp_ns, double 
 std::vector<Vector6d> ObjectStepTwists(const BaObject& object) {
   std::vector<Vector6d> out;
   for (size_t k = 1; k < object.frames.size(); ++k) {
-    out.push_back((object.frames[k].world_from_object * object.frames[k - 1].world_from_object.Inverse()).Log());
+    out.push_back(
+        (object.frames[k].world_from_object * object.frames[k - 1].world_from_object.Inverse())
+            .Log());
   }
   return out;
 }
 
-absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem, const DynamicBaOptions& options) {
+absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
+                                                const DynamicBaOptions& options) {
   CHECK(problem != nullptr);
   if (absl::Status s = options.Validate(); !s.ok()) return s;
   if (absl::Status s = problem->Validate(); !s.ok()) return s;
@@ -143,7 +157,8 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem, const
   // Parameter storage.
   const size_t nk = problem->keyframes.size();
   std::vector<std::array<double, 7>> kf_params(nk);
-  for (size_t i = 0; i < nk; ++i) problem->keyframes[i].camera_from_world.ToParams(kf_params[i].data());
+  for (size_t i = 0; i < nk; ++i)
+    problem->keyframes[i].camera_from_world.ToParams(kf_params[i].data());
   std::vector<std::array<double, 3>> point_params(problem->points.size());
   for (size_t j = 0; j < problem->points.size(); ++j) {
     Eigen::Map<Eigen::Vector3d>(point_params[j].data()) = problem->points[j].point_in_world;
@@ -168,7 +183,8 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem, const
     if (ceres_problem.HasParameterBlock(x)) return x;
     ceres_problem.AddParameterBlock(x, 7, &se3_manifold);
     const bool fix = problem->keyframes[static_cast<size_t>(i)].fixed ||
-                     (!any_fixed && options.fix_oldest_keyframe_if_none_fixed && static_cast<size_t>(i) == oldest);
+                     (!any_fixed && options.fix_oldest_keyframe_if_none_fixed &&
+                      static_cast<size_t>(i) == oldest);
     if (fix) ceres_problem.SetParameterBlockConstant(x);
     return x;
   };
@@ -180,16 +196,19 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem, const
     const double s = 1.0 / o.sigma_px;
     ceres::CostFunction* cost;
     if (o.u_right >= 0.0) {
-      cost = options.use_autodiff ? optimization::ReprojectionFunctor<3>::Create(cam, Measurement<3>(o), s)
-                                  : static_cast<ceres::CostFunction*>(
-                                        new optimization::ReprojectionCost<3>(cam, Measurement<3>(o), s));
+      cost = options.use_autodiff
+                 ? optimization::ReprojectionFunctor<3>::Create(cam, Measurement<3>(o), s)
+                 : static_cast<ceres::CostFunction*>(
+                       new optimization::ReprojectionCost<3>(cam, Measurement<3>(o), s));
     } else {
-      cost = options.use_autodiff ? optimization::ReprojectionFunctor<2>::Create(cam, Measurement<2>(o), s)
-                                  : static_cast<ceres::CostFunction*>(
-                                        new optimization::ReprojectionCost<2>(cam, Measurement<2>(o), s));
+      cost = options.use_autodiff
+                 ? optimization::ReprojectionFunctor<2>::Create(cam, Measurement<2>(o), s)
+                 : static_cast<ceres::CostFunction*>(
+                       new optimization::ReprojectionCost<2>(cam, Measurement<2>(o), s));
     }
     ceres_problem.AddResidualBlock(cost, new ceres::HuberLoss(options.huber_delta), x, p);
-    if (problem->points[static_cast<size_t>(o.point)].fixed) ceres_problem.SetParameterBlockConstant(p);
+    if (problem->points[static_cast<size_t>(o.point)].fixed)
+      ceres_problem.SetParameterBlockConstant(p);
     ++summary.num_static_terms;
   }
 
@@ -215,9 +234,12 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem, const
       std::vector<double> comps;
       for (const BaObservation& o : obj.observations) {
         const int f = op.frame_of_keyframe[static_cast<size_t>(o.keyframe)];
-        DynamicResidual(cam, problem->keyframes[static_cast<size_t>(o.keyframe)].camera_from_world,
+        DynamicResidual(cam,
+                        problem->keyframes[static_cast<size_t>(o.keyframe)].camera_from_world,
                         obj.frames[static_cast<size_t>(f)].world_from_object,
-                        obj.points_in_object[static_cast<size_t>(o.point)], o, &comps);
+                        obj.points_in_object[static_cast<size_t>(o.point)],
+                        o,
+                        &comps);
       }
       mad_sigma = std::max(options.min_sigma_px, MadScale(comps));
     }
@@ -231,16 +253,19 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem, const
       ceres::CostFunction* cost;
       if (o.u_right >= 0.0) {
         cost = options.use_autodiff
-                   ? optimization::DynamicReprojectionFunctor<3>::Create(cam, Measurement<3>(o), s, op.projector)
-                   : static_cast<ceres::CostFunction*>(
-                         new optimization::DynamicReprojectionCost<3>(cam, Measurement<3>(o), s, op.projector));
+                   ? optimization::DynamicReprojectionFunctor<3>::Create(
+                         cam, Measurement<3>(o), s, op.projector)
+                   : static_cast<ceres::CostFunction*>(new optimization::DynamicReprojectionCost<3>(
+                         cam, Measurement<3>(o), s, op.projector));
       } else {
         cost = options.use_autodiff
-                   ? optimization::DynamicReprojectionFunctor<2>::Create(cam, Measurement<2>(o), s, op.projector)
-                   : static_cast<ceres::CostFunction*>(
-                         new optimization::DynamicReprojectionCost<2>(cam, Measurement<2>(o), s, op.projector));
+                   ? optimization::DynamicReprojectionFunctor<2>::Create(
+                         cam, Measurement<2>(o), s, op.projector)
+                   : static_cast<ceres::CostFunction*>(new optimization::DynamicReprojectionCost<2>(
+                         cam, Measurement<2>(o), s, op.projector));
       }
-      ceres_problem.AddResidualBlock(cost, new ceres::HuberLoss(options.huber_delta), x, xi, pose, p);
+      ceres_problem.AddResidualBlock(
+          cost, new ceres::HuberLoss(options.huber_delta), x, xi, pose, p);
       ceres_problem.SetManifold(pose, &se3_manifold);
       ceres_problem.SetParameterBlockConstant(pose);  // optimised through ξ̃ only
       if (obj.frames[static_cast<size_t>(f)].fixed) ceres_problem.SetParameterBlockConstant(xi);
@@ -258,11 +283,18 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem, const
         }
         ceres::CostFunction* cost =
             options.use_autodiff
-                ? optimization::ConstantVelocityFunctor::Create(op.projector, options.const_velocity_sqrt_weight)
-                : static_cast<ceres::CostFunction*>(
-                      new optimization::ConstantVelocityCost(op.projector, options.const_velocity_sqrt_weight));
-        ceres_problem.AddResidualBlock(cost, new ceres::HuberLoss(options.const_velocity_huber), blocks[0],
-                                       blocks[1], blocks[2], blocks[3], blocks[4], blocks[5]);
+                ? optimization::ConstantVelocityFunctor::Create(op.projector,
+                                                                options.const_velocity_sqrt_weight)
+                : static_cast<ceres::CostFunction*>(new optimization::ConstantVelocityCost(
+                      op.projector, options.const_velocity_sqrt_weight));
+        ceres_problem.AddResidualBlock(cost,
+                                       new ceres::HuberLoss(options.const_velocity_huber),
+                                       blocks[0],
+                                       blocks[1],
+                                       blocks[2],
+                                       blocks[3],
+                                       blocks[4],
+                                       blocks[5]);
         for (int b = 0; b < 3; ++b) {
           const size_t g = f + static_cast<size_t>(b) - 1;
           ceres_problem.SetManifold(blocks[2 * b + 1], &se3_manifold);
@@ -281,7 +313,8 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem, const
     }
     for (size_t f = 0; f < obj.frames.size(); ++f) {
       double* xi = op.twist[f].data();
-      if (!ceres_problem.HasParameterBlock(xi) || ceres_problem.IsParameterBlockConstant(xi)) continue;
+      if (!ceres_problem.HasParameterBlock(xi) || ceres_problem.IsParameterBlockConstant(xi))
+        continue;
       if (basis.cols() == 0) {
         ceres_problem.SetParameterBlockConstant(xi);
       } else if (subspace != nullptr) {
@@ -296,8 +329,9 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem, const
   }
 
   ceres::Solver::Options solver_options;
-  solver_options.linear_solver_type =
-      options.linear_solver == BaLinearSolver::kDenseSchur ? ceres::DENSE_SCHUR : ceres::SPARSE_SCHUR;
+  solver_options.linear_solver_type = options.linear_solver == BaLinearSolver::kDenseSchur
+                                          ? ceres::DENSE_SCHUR
+                                          : ceres::SPARSE_SCHUR;
   solver_options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
   solver_options.max_num_iterations = options.max_iterations;
   solver_options.num_threads = options.num_threads;

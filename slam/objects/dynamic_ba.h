@@ -18,11 +18,10 @@
 // Plain data in and out, so that the mapper can build it from its map.
 #pragma once
 
+#include <Eigen/Core>
 #include <cstdint>
 #include <string>
 #include <vector>
-
-#include <Eigen/Core>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -52,8 +51,8 @@ struct BaObservation {
   int keyframe = 0;
   int point = 0;
   Eigen::Vector2d uv = Eigen::Vector2d::Zero();
-  double u_right = -1.0;   // < 0: mono
-  double sigma_px = 1.0;   // standard deviation of the measurement
+  double u_right = -1.0;  // < 0: mono
+  double sigma_px = 1.0;  // standard deviation of the measurement
 };
 
 struct BaObjectFrame {

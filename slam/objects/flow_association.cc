@@ -1,10 +1,9 @@
 #include "slam/objects/flow_association.h"
 
 #include <cmath>
-#include <string>
-
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
+#include <string>
 
 namespace twist::objects {
 namespace {
@@ -65,27 +64,48 @@ absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> TrackSparseFlow(
   if (prev_points.empty()) return out;
   std::vector<cv::Point2f> p0, p1, back;
   p0.reserve(prev_points.size());
-  for (const auto& p : prev_points) p0.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
+  for (const auto& p : prev_points)
+    p0.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
   int flags = 0;
   if (predicted != nullptr) {
-    for (const auto& p : *predicted) p1.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
+    for (const auto& p : *predicted)
+      p1.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
     flags |= cv::OPTFLOW_USE_INITIAL_FLOW;
   }
   const cv::Size win(options.window_size, options.window_size);
-  const cv::TermCriteria criteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS,
-                                  options.max_iterations, options.epsilon);
+  const cv::TermCriteria criteria(
+      cv::TermCriteria::COUNT | cv::TermCriteria::EPS, options.max_iterations, options.epsilon);
   std::vector<uchar> status, status_back;
   std::vector<float> err;
-  cv::calcOpticalFlowPyrLK(*g0, *g1, p0, p1, status, err, win, options.max_level, criteria, flags,
+  cv::calcOpticalFlowPyrLK(*g0,
+                           *g1,
+                           p0,
+                           p1,
+                           status,
+                           err,
+                           win,
+                           options.max_level,
+                           criteria,
+                           flags,
                            options.min_eigen_threshold);
   back = p0;  // the start is a good guess for the way back
-  cv::calcOpticalFlowPyrLK(*g1, *g0, p1, back, status_back, err, win, options.max_level, criteria,
-                           cv::OPTFLOW_USE_INITIAL_FLOW, options.min_eigen_threshold);
+  cv::calcOpticalFlowPyrLK(*g1,
+                           *g0,
+                           p1,
+                           back,
+                           status_back,
+                           err,
+                           win,
+                           options.max_level,
+                           criteria,
+                           cv::OPTFLOW_USE_INITIAL_FLOW,
+                           options.min_eigen_threshold);
   for (size_t k = 0; k < prev_points.size(); ++k) {
     if (!status[k] || !status_back[k]) continue;
     const Eigen::Vector2d fwd(p1[k].x, p1[k].y);
     const Eigen::Vector2d bwd(back[k].x, back[k].y);
-    if (!fwd.allFinite() || (bwd - prev_points[k]).norm() > options.max_forward_backward_px) continue;
+    if (!fwd.allFinite() || (bwd - prev_points[k]).norm() > options.max_forward_backward_px)
+      continue;
     if (!Inside(g1->size(), fwd, options.border_px)) continue;
     out[k] = fwd;
   }
@@ -93,9 +113,7 @@ absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> TrackSparseFlow(
 }
 
 absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> TrackDenseFlow(
-    const cv::Mat& flow,
-    const std::vector<Eigen::Vector2d>& prev_points,
-    double border_px) {
+    const cv::Mat& flow, const std::vector<Eigen::Vector2d>& prev_points, double border_px) {
   if (flow.empty() || flow.type() != CV_32FC2) {
     return absl::InvalidArgumentError("dense flow must be a non-empty CV_32FC2 field (dx, dy)");
   }

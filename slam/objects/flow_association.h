@@ -3,11 +3,10 @@
 // field supplied by the client with the frame).
 #pragma once
 
-#include <optional>
-#include <vector>
-
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
+#include <optional>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -15,8 +14,8 @@
 namespace twist::objects {
 
 struct SparseFlowOptions {
-  int window_size = 21;       // pixels, odd
-  int max_level = 3;          // pyramid levels above the base image
+  int window_size = 21;  // pixels, odd
+  int max_level = 3;     // pyramid levels above the base image
   int max_iterations = 30;
   double epsilon = 0.01;
   double min_eigen_threshold = 1e-4;
@@ -44,9 +43,7 @@ absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> TrackSparseFlow(
 // outside the field, the flow is not finite, or the target leaves the image
 // (minus border_px).
 absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> TrackDenseFlow(
-    const cv::Mat& flow,
-    const std::vector<Eigen::Vector2d>& prev_points,
-    double border_px = 2.0);
+    const cv::Mat& flow, const std::vector<Eigen::Vector2d>& prev_points, double border_px = 2.0);
 
 // Dense Farnebäck flow prev -> next (8-bit, converted to gray if needed), for
 // clients that send no flow but want the dense path.

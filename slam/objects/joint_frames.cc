@@ -26,7 +26,8 @@ absl::StatusOr<Joint> ResolveJoint(const JointSpec& spec) {
       }
       const Eigen::Vector4d& p = *spec.parent_plane;
       const Eigen::Vector3d n = semantic::PlaneNormal(p);
-      const Eigen::Vector3d on_plane = spec.anchor - semantic::PointPlaneDistance(p, spec.anchor) * n;
+      const Eigen::Vector3d on_plane =
+          spec.anchor - semantic::PointPlaneDistance(p, spec.anchor) * n;
       return Joint::FromPlane(spec.type, n, on_plane);
     }
     case JointType::kRevolute:
@@ -40,7 +41,8 @@ absl::StatusOr<Joint> ResolveJoint(const JointSpec& spec) {
       if (spec.parent_plane && spec.parent_plane->head<3>().norm() > 0.0) {
         const Eigen::Vector4d& p = *spec.parent_plane;
         const Eigen::Vector3d n = semantic::PlaneNormal(p);
-        const Eigen::Vector3d on_plane = spec.anchor - semantic::PointPlaneDistance(p, spec.anchor) * n;
+        const Eigen::Vector3d on_plane =
+            spec.anchor - semantic::PointPlaneDistance(p, spec.anchor) * n;
         return Joint::FromAxis(spec.type, n, on_plane, spec.pitch);
       }
       return absl::FailedPreconditionError(name + " joint needs an axis or the parent's plane");

@@ -3,9 +3,8 @@
 // revolute joint on a hinge axis in its wall.
 #pragma once
 
-#include <optional>
-
 #include <Eigen/Core>
+#include <optional>
 
 #include "absl/status/statusor.h"
 #include "slam/joints/joint.h"
@@ -15,7 +14,7 @@ namespace twist::objects {
 // What is known about a dynamic cluster's parent and the cluster itself.
 struct JointSpec {
   joints::JointType type = joints::JointType::kFree;
-  double pitch = 0.0;                          // helical only
+  double pitch = 0.0;                           // helical only
   std::optional<Eigen::Vector4d> parent_plane;  // (a, b, c, d) of the parent cluster
   // Axis (revolute, prismatic, cylindrical, helical, sphere-cylinder) through
   // axis_point with direction axis_direction, world frame.

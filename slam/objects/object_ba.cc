@@ -1,8 +1,8 @@
 #include "slam/objects/object_ba.h"
 
-#include <unordered_map>
-
 #include <glog/logging.h>
+
+#include <unordered_map>
 
 namespace twist::objects {
 
@@ -92,7 +92,8 @@ void ApplyBaToTrackedObjects(const DynamicBaProblem& problem,
       o->world_from_object = o->history.back().world_from_object;
       if (o->history.size() >= 2) {
         const ObjectPoseSample& prev = o->history[o->history.size() - 2];
-        if (pose_of_frame.count(prev.frame_index) > 0 && o->history.back().frame_index == prev.frame_index + 1) {
+        if (pose_of_frame.count(prev.frame_index) > 0 &&
+            o->history.back().frame_index == prev.frame_index + 1) {
           o->twist_step = o->joint.WorldProjector() *
                           (o->world_from_object * prev.world_from_object.Inverse()).Log();
           o->history.back().twist_step = o->twist_step;

@@ -16,15 +16,15 @@ namespace twist::objects {
 // Which BA object came from which tracked object, frame by frame.
 struct ObjectBaLink {
   int64_t object_id = 0;
-  int problem_object = 0;               // index into DynamicBaProblem::objects
-  std::vector<int64_t> frame_indices;   // per BaObjectFrame
-  std::vector<int64_t> point_ids;       // per BaObject point
+  int problem_object = 0;              // index into DynamicBaProblem::objects
+  std::vector<int64_t> frame_indices;  // per BaObjectFrame
+  std::vector<int64_t> point_ids;      // per BaObject point
 };
 
 struct ObjectBaOptions {
-  int min_frames = 3;            // objects seen in fewer window frames are skipped
+  int min_frames = 3;  // objects seen in fewer window frames are skipped
   int min_observations_per_point = 2;
-  double sigma_px = 1.0;         // per observation (MAD replaces it by default)
+  double sigma_px = 1.0;  // per observation (MAD replaces it by default)
 };
 
 // For every tracked object, the history samples whose frame index is in

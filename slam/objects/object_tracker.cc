@@ -1,12 +1,12 @@
 #include "slam/objects/object_tracker.h"
 
+#include <glog/logging.h>
+
 #include <algorithm>
 #include <cmath>
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
-
-#include <glog/logging.h>
 
 namespace twist::objects {
 
@@ -20,7 +20,8 @@ namespace {
 class KeypointGrid {
  public:
   KeypointGrid(const FrameKeypoints& kps, double cell) : kps_(kps), cell_(cell) {
-    for (size_t k = 0; k < kps.uv.size(); ++k) cells_[Key(kps.uv[k])].push_back(static_cast<int>(k));
+    for (size_t k = 0; k < kps.uv.size(); ++k)
+      cells_[Key(kps.uv[k])].push_back(static_cast<int>(k));
   }
   // Nearest keypoint within radius satisfying pred, or -1.
   template <typename Pred>
@@ -51,14 +52,17 @@ class KeypointGrid {
     return (static_cast<int64_t>(x) << 32) ^ static_cast<int64_t>(static_cast<uint32_t>(y));
   }
   int64_t Key(const Eigen::Vector2d& uv) const {
-    return Pack(static_cast<int>(std::floor(uv.x() / cell_)), static_cast<int>(std::floor(uv.y() / cell_)));
+    return Pack(static_cast<int>(std::floor(uv.x() / cell_)),
+                static_cast<int>(std::floor(uv.y() / cell_)));
   }
   const FrameKeypoints& kps_;
   double cell_;
   std::unordered_map<int64_t, std::vector<int>> cells_;
 };
 
-bool InsideDetection(const ObjectDetectionInput& det, const Eigen::Vector2d& uv, double margin = 0.0) {
+bool InsideDetection(const ObjectDetectionInput& det,
+                     const Eigen::Vector2d& uv,
+                     double margin = 0.0) {
   if (!det.mask.empty()) {
     const int x = static_cast<int>(std::lround(uv.x()));
     const int y = static_cast<int>(std::lround(uv.y()));
@@ -66,7 +70,8 @@ bool InsideDetection(const ObjectDetectionInput& det, const Eigen::Vector2d& uv,
     return det.mask.at<uint8_t>(y, x) != 0;
   }
   return uv.x() >= det.box.x - margin && uv.y() >= det.box.y - margin &&
-         uv.x() <= det.box.x + det.box.width + margin && uv.y() <= det.box.y + det.box.height + margin;
+         uv.x() <= det.box.x + det.box.width + margin &&
+         uv.y() <= det.box.y + det.box.height + margin;
 }
 
 // Reference patch for the NCC search; none on untextured areas, where the
@@ -93,7 +98,10 @@ struct ObjectTracker::FrameContext {
   double dt = 0.0;  // seconds since the previous frame (0 on the first)
   KeypointGrid grid;
   FrameContext(const ObjectFrameInput& f, double dt_s)
-      : frame(f), world_from_camera(f.camera_from_world.Inverse()), dt(dt_s), grid(f.keypoints, 8.0) {}
+      : frame(f),
+        world_from_camera(f.camera_from_world.Inverse()),
+        dt(dt_s),
+        grid(f.keypoints, 8.0) {}
 };
 
 absl::Status ObjectTrackerOptions::Validate() const {
@@ -104,7 +112,8 @@ absl::Status ObjectTrackerOptions::Validate() const {
         "object tracker needs 3 <= min_points_to_track <= min_points_to_create");
   }
   if (max_points_per_object < min_points_to_create) {
-    return absl::InvalidArgumentError("object tracker max_points_per_object < min_points_to_create");
+    return absl::InvalidArgumentError(
+        "object tracker max_points_per_object < min_points_to_create");
   }
   if (!(max_depth_m > 0.0) || !(max_depth_spread_m > 0.0) || max_frames_lost < 0) {
     return absl::InvalidArgumentError(
@@ -113,7 +122,8 @@ absl::Status ObjectTrackerOptions::Validate() const {
   return absl::OkStatus();
 }
 
-ObjectTracker::ObjectTracker(const geometry::StereoCamera& camera, const ObjectTrackerOptions& options)
+ObjectTracker::ObjectTracker(const geometry::StereoCamera& camera,
+                             const ObjectTrackerOptions& options)
     : camera_(camera), options_(options) {
   CHECK(camera_.Validate().ok()) << camera_.Validate().message();
   CHECK(options_.Validate().ok()) << options_.Validate().message();
@@ -166,7 +176,8 @@ void ObjectTracker::AddNewPoints(const FrameContext& ctx,
   const SE3d camera_from_object = ctx.frame.camera_from_world * o->world_from_object;
   const SE3d object_from_camera = camera_from_object.Inverse();
   std::vector<double> depths;
-  for (const ObjectPoint& p : o->points) depths.push_back((camera_from_object * p.point_in_object).z());
+  for (const ObjectPoint& p : o->points)
+    depths.push_back((camera_from_object * p.point_in_object).z());
   const double median_depth = Median(depths);
   std::vector<Eigen::Vector2d> taken = occupied;
   const double spacing2 = options_.min_point_spacing_px * options_.min_point_spacing_px;
@@ -181,9 +192,11 @@ void ObjectTracker::AddNewPoints(const FrameContext& ctx,
       }
     }
     if (close) continue;
-    const auto p_c = camera_.TriangulateStereo(kps.uv[k].x(), kps.uv[k].y(), kps.u_right[k], options_.max_depth_m);
+    const auto p_c = camera_.TriangulateStereo(
+        kps.uv[k].x(), kps.uv[k].y(), kps.u_right[k], options_.max_depth_m);
     if (!p_c) continue;
-    if (!depths.empty() && std::abs(p_c->z() - median_depth) > options_.max_depth_spread_m) continue;
+    if (!depths.empty() && std::abs(p_c->z() - median_depth) > options_.max_depth_spread_m)
+      continue;
     ObjectPoint p;
     p.id = o->next_point_id++;
     p.point_in_object = object_from_camera * *p_c;
@@ -198,13 +211,16 @@ void ObjectTracker::AddNewPoints(const FrameContext& ctx,
   }
 }
 
-bool ObjectTracker::Create(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* o) {
+bool ObjectTracker::Create(const FrameContext& ctx,
+                           const ObjectDetectionInput& det,
+                           TrackedObject* o) {
   const FrameKeypoints& kps = ctx.frame.keypoints;
   std::vector<size_t> idx;
   std::vector<Eigen::Vector3d> p_cam;
   for (size_t k = 0; k < kps.uv.size(); ++k) {
     if (kps.u_right[k] < 0.0 || !InsideDetection(det, kps.uv[k])) continue;
-    const auto p_c = camera_.TriangulateStereo(kps.uv[k].x(), kps.uv[k].y(), kps.u_right[k], options_.max_depth_m);
+    const auto p_c = camera_.TriangulateStereo(
+        kps.uv[k].x(), kps.uv[k].y(), kps.u_right[k], options_.max_depth_m);
     if (!p_c) continue;
     idx.push_back(k);
     p_cam.push_back(*p_c);
@@ -232,7 +248,9 @@ bool ObjectTracker::Create(const FrameContext& ctx, const ObjectDetectionInput& 
   o->world_from_object = SE3d(world_from_joint.so3(), origin);
   const SE3d object_from_world = o->world_from_object.Inverse();
   o->points.clear();
-  for (size_t m = 0; m < kept.size() && static_cast<int>(o->points.size()) < options_.max_points_per_object; ++m) {
+  for (size_t m = 0;
+       m < kept.size() && static_cast<int>(o->points.size()) < options_.max_points_per_object;
+       ++m) {
     const size_t k = idx[kept[m]];
     ObjectPoint p;
     p.id = o->next_point_id++;
@@ -257,7 +275,9 @@ bool ObjectTracker::Create(const FrameContext& ctx, const ObjectDetectionInput& 
   return true;
 }
 
-bool ObjectTracker::Track(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* o) {
+bool ObjectTracker::Track(const FrameContext& ctx,
+                          const ObjectDetectionInput& det,
+                          TrackedObject* o) {
   const ObjectFrameInput& f = ctx.frame;
   // Constant-velocity prediction, scaled to this frame's duration.
   Vector6d initial = o->twist_step;
@@ -272,7 +292,8 @@ bool ObjectTracker::Track(const FrameContext& ctx, const ObjectDetectionInput& d
     flow_idx.push_back(k);
     prev_uv.push_back(o->points[k].last_uv);
     Eigen::Vector2d uv;
-    if (!camera_.ProjectChecked(camera_from_predicted * o->points[k].point_in_object, &uv, nullptr, 0.1) ||
+    if (!camera_.ProjectChecked(
+            camera_from_predicted * o->points[k].point_in_object, &uv, nullptr, 0.1) ||
         !camera_.InImage(uv)) {
       uv = o->points[k].last_uv;
     }
@@ -303,7 +324,8 @@ bool ObjectTracker::Track(const FrameContext& ctx, const ObjectDetectionInput& d
       return HammingDistance(desc, f.keypoints.descriptors.row(i)) <= options_.search.max_hamming;
     });
     if (kp < 0) return -1.0;
-    return f.keypoints.u_right[static_cast<size_t>(kp)] + (uv.x() - f.keypoints.uv[static_cast<size_t>(kp)].x());
+    return f.keypoints.u_right[static_cast<size_t>(kp)] +
+           (uv.x() - f.keypoints.uv[static_cast<size_t>(kp)].x());
   };
   for (size_t j = 0; j < flow_idx.size(); ++j) {
     const auto& q = (*flowed)[j];
@@ -313,8 +335,13 @@ bool ObjectTracker::Track(const FrameContext& ctx, const ObjectDetectionInput& d
   const Matrix6d projector = o->joint.WorldProjector();
   std::optional<TwistEstimate> est;
   if (static_cast<int>(obs.size()) >= options_.min_points_to_track) {
-    absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_, f.camera_from_world, o->world_from_object,
-                                                          projector, obs, initial, options_.estimator);
+    absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_,
+                                                          f.camera_from_world,
+                                                          o->world_from_object,
+                                                          projector,
+                                                          obs,
+                                                          initial,
+                                                          options_.estimator);
     if (e.ok() && e->success) est = *e;
   }
 
@@ -362,15 +389,22 @@ bool ObjectTracker::Track(const FrameContext& ctx, const ObjectDetectionInput& d
       }
       if (o->points[k].patch.empty()) continue;
       Eigen::Vector2d uv;
-      if (!camera_.ProjectChecked(camera_from_object * pts[k], &uv, nullptr, 0.1) || !camera_.InImage(uv, 8)) continue;
+      if (!camera_.ProjectChecked(camera_from_object * pts[k], &uv, nullptr, 0.1) ||
+          !camera_.InImage(uv, 8))
+        continue;
       const auto found = PatchSearch(f.left, o->points[k].patch, uv, options_.search);
       if (found && InsideDetection(det, *found, 2.0)) add_obs(k, *found, stereo_at(*found, k));
     }
     if (obs.size() > before || !est) {
       if (static_cast<int>(obs.size()) < options_.min_points_to_track) return est.has_value();
       const Vector6d seed = est ? est->twist : initial;
-      absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_, f.camera_from_world, o->world_from_object,
-                                                            projector, obs, seed, options_.estimator);
+      absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_,
+                                                            f.camera_from_world,
+                                                            o->world_from_object,
+                                                            projector,
+                                                            obs,
+                                                            seed,
+                                                            options_.estimator);
       if (e.ok() && e->success) {
         est = *e;
       } else if (!est) {
@@ -411,7 +445,8 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
   const ObjectFrameInput& f = ctx.frame;
   // Steps elapsed since the object was last seen, in units of its last step.
   double steps = static_cast<double>(std::max<int64_t>(1, f.frame_index - o->last_seen_frame));
-  if (o->step_seconds > 0.0 && !o->history.empty() && f.timestamp_ns > o->history.back().timestamp_ns) {
+  if (o->step_seconds > 0.0 && !o->history.empty() &&
+      f.timestamp_ns > o->history.back().timestamp_ns) {
     steps = (f.timestamp_ns - o->history.back().timestamp_ns) * 1e-9 / o->step_seconds;
   }
   const Matrix6d projector = EffectiveJoint(det.joint).WorldProjector();
@@ -427,7 +462,8 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
     pts.push_back(p.point_in_object);
     descs.push_back(p.descriptor);
     Eigen::Vector2d uv;
-    if (!camera_.ProjectChecked(camera_from_object * p.point_in_object, &uv, nullptr, 0.1)) continue;
+    if (!camera_.ProjectChecked(camera_from_object * p.point_in_object, &uv, nullptr, 0.1))
+      continue;
     ++in_front;
     x0 = std::min(x0, uv.x());
     y0 = std::min(y0, uv.y());
@@ -440,8 +476,13 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
   const double iou = inter > 0 ? inter / (box.area() + det.box.area() - inter) : 0.0;
   ProjectionSearchOptions search = options_.search;
   search.radius_px *= options_.reid_radius_scale;
-  const std::vector<int> match = SearchByProjection(camera_, camera_from_object, pts, descs,
-                                                    std::vector<bool>(pts.size(), false), f.keypoints, search);
+  const std::vector<int> match = SearchByProjection(camera_,
+                                                    camera_from_object,
+                                                    pts,
+                                                    descs,
+                                                    std::vector<bool>(pts.size(), false),
+                                                    f.keypoints,
+                                                    search);
   std::vector<TwistObservation> obs;
   std::vector<size_t> obs_point;
   int with_descriptor = 0;
@@ -457,13 +498,20 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
     obs.push_back(t);
     obs_point.push_back(k);
   }
-  const double appearance = with_descriptor > 0 ? static_cast<double>(obs.size()) / with_descriptor : 0.0;
+  const double appearance =
+      with_descriptor > 0 ? static_cast<double>(obs.size()) / with_descriptor : 0.0;
   *score = 0.5 * iou + 0.5 * appearance;
-  if (*score < options_.reid_min_score || static_cast<int>(obs.size()) < options_.min_points_to_track) {
+  if (*score < options_.reid_min_score ||
+      static_cast<int>(obs.size()) < options_.min_points_to_track) {
     return false;
   }
-  absl::StatusOr<TwistEstimate> est = EstimateObjectTwist(camera_, f.camera_from_world, o->world_from_object,
-                                                          projector, obs, initial, options_.estimator);
+  absl::StatusOr<TwistEstimate> est = EstimateObjectTwist(camera_,
+                                                          f.camera_from_world,
+                                                          o->world_from_object,
+                                                          projector,
+                                                          obs,
+                                                          initial,
+                                                          options_.estimator);
   if (!est.ok() || !est->success) return false;
   o->joint = EffectiveJoint(det.joint);
   o->world_from_object = est->world_from_object;
@@ -491,11 +539,12 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
     return absl::InvalidArgumentError("object tracker needs a CV_8UC1 left image");
   }
   if (frame.left.cols != camera_.width || frame.left.rows != camera_.height) {
-    return absl::InvalidArgumentError("left image is " + std::to_string(frame.left.cols) + "x" +
-                                      std::to_string(frame.left.rows) + ", camera is " +
-                                      std::to_string(camera_.width) + "x" + std::to_string(camera_.height));
+    return absl::InvalidArgumentError(
+        "left image is " + std::to_string(frame.left.cols) + "x" + std::to_string(frame.left.rows) +
+        ", camera is " + std::to_string(camera_.width) + "x" + std::to_string(camera_.height));
   }
-  if (!frame.flow.empty() && (frame.flow.type() != CV_32FC2 || frame.flow.size() != frame.left.size())) {
+  if (!frame.flow.empty() &&
+      (frame.flow.type() != CV_32FC2 || frame.flow.size() != frame.left.size())) {
     return absl::InvalidArgumentError("flow must be CV_32FC2 with the size of the left image");
   }
   const FrameKeypoints& kps = frame.keypoints;
@@ -550,7 +599,8 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
     // Re-identification of a recently lost object of the same class.
     TrackedObject* best = nullptr;
     for (auto& [id, obj] : objects_) {
-      if (handled.count(id) > 0 || obj.class_id != det->class_id || obj.state != ObjectState::kLost) continue;
+      if (handled.count(id) > 0 || obj.class_id != det->class_id || obj.state != ObjectState::kLost)
+        continue;
       double score = 0.0;
       if (Reacquire(ctx, *det, &obj, &score)) {
         best = &obj;

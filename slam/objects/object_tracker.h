@@ -24,13 +24,12 @@
 // in the frame with its resolved joint.
 #pragma once
 
+#include <Eigen/Core>
 #include <cstdint>
 #include <deque>
 #include <map>
-#include <vector>
-
-#include <Eigen/Core>
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -47,8 +46,8 @@ namespace twist::objects {
 struct ObjectPoint {
   int64_t id = 0;  // unique within its object
   Eigen::Vector3d point_in_object = Eigen::Vector3d::Zero();
-  cv::Mat descriptor;  // CV_8U row (may be empty)
-  cv::Mat patch;       // CV_32F reference patch (may be empty)
+  cv::Mat descriptor;                                 // CV_8U row (may be empty)
+  cv::Mat patch;                                      // CV_32F reference patch (may be empty)
   Eigen::Vector2d last_uv = Eigen::Vector2d::Zero();  // in the last frame it was seen
   bool seen_last_frame = false;
   int num_observations = 0;
@@ -111,8 +110,8 @@ struct ObjectFrameInput {
   int64_t frame_index = 0;
   int64_t timestamp_ns = 0;
   geometry::SE3d camera_from_world;
-  cv::Mat left;  // CV_8UC1
-  cv::Mat flow;  // optional CV_32FC2 previous-left -> this-left
+  cv::Mat left;              // CV_8UC1
+  cv::Mat flow;              // optional CV_32FC2 previous-left -> this-left
   FrameKeypoints keypoints;  // stereo keypoints of the left image (u_right < 0: mono)
   std::vector<ObjectDetectionInput> detections;
 };
@@ -121,17 +120,17 @@ struct ObjectTrackerOptions {
   TwistEstimatorOptions estimator;
   SparseFlowOptions flow;
   ProjectionSearchOptions search;
-  bool constrained = true;          // false: every object is a free 6-DoF body
+  bool constrained = true;  // false: every object is a free 6-DoF body
   int min_points_to_create = 8;
   int min_points_to_track = 5;
   int max_points_per_object = 300;
   double max_depth_m = 60.0;        // triangulated points further away are dropped
   double max_depth_spread_m = 4.0;  // around the object's median depth
   double min_point_spacing_px = 3.0;
-  double stereo_lookup_px = 1.5;    // flow position -> stereo keypoint
-  int max_frames_lost = 10;         // re-identification window, then removed
+  double stereo_lookup_px = 1.5;  // flow position -> stereo keypoint
+  int max_frames_lost = 10;       // re-identification window, then removed
   double reid_min_score = 0.3;
-  double reid_radius_scale = 4.0;   // search radius multiplier after a loss
+  double reid_radius_scale = 4.0;  // search radius multiplier after a loss
   bool refine_by_projection = true;
   int max_history = 300;
 
@@ -165,10 +164,14 @@ class ObjectTracker {
  private:
   struct FrameContext;
   bool Track(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* object);
-  bool Reacquire(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* object,
+  bool Reacquire(const FrameContext& ctx,
+                 const ObjectDetectionInput& det,
+                 TrackedObject* object,
                  double* score);
   bool Create(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* object);
-  void AddNewPoints(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* object,
+  void AddNewPoints(const FrameContext& ctx,
+                    const ObjectDetectionInput& det,
+                    TrackedObject* object,
                     const std::vector<Eigen::Vector2d>& occupied);
   void RecordPose(const FrameContext& ctx, TrackedObject* object);
   joints::Joint EffectiveJoint(const joints::Joint& joint) const;

@@ -1,14 +1,14 @@
 #include "slam/objects/projection_search.h"
 
+#include <glog/logging.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
-#include <unordered_map>
 #include <limits>
-
-#include <glog/logging.h>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
+#include <unordered_map>
 
 namespace twist::objects {
 
@@ -45,10 +45,14 @@ std::vector<int> SearchByProjection(const geometry::StereoCamera& camera,
   // Bucket the keypoints on a grid of radius-sized cells.
   const double cell = std::max(4.0, options.radius_px);
   std::unordered_map<int64_t, std::vector<int>> grid;
-  auto pack = [](int x, int y) { return (static_cast<int64_t>(x) << 32) ^ static_cast<int64_t>(static_cast<uint32_t>(y)); };
+  auto pack = [](int x, int y) {
+    return (static_cast<int64_t>(x) << 32) ^ static_cast<int64_t>(static_cast<uint32_t>(y));
+  };
   for (int i = 0; i < num_kp; ++i) {
     const Eigen::Vector2d& q = keypoints.uv[static_cast<size_t>(i)];
-    grid[pack(static_cast<int>(std::floor(q.x() / cell)), static_cast<int>(std::floor(q.y() / cell)))].push_back(i);
+    grid[pack(static_cast<int>(std::floor(q.x() / cell)),
+              static_cast<int>(std::floor(q.y() / cell)))]
+        .push_back(i);
   }
   std::vector<int> owner(static_cast<size_t>(num_kp), -1);
   std::vector<int> owner_dist(static_cast<size_t>(num_kp), std::numeric_limits<int>::max());
@@ -56,9 +60,11 @@ std::vector<int> SearchByProjection(const geometry::StereoCamera& camera,
   for (size_t k = 0; k < n; ++k) {
     if (skip[k] || descriptors[k].empty()) continue;
     Eigen::Vector2d uv;
-    if (!camera.ProjectChecked(camera_from_object * points_in_object[k], &uv, nullptr, 0.1)) continue;
+    if (!camera.ProjectChecked(camera_from_object * points_in_object[k], &uv, nullptr, 0.1))
+      continue;
     if (!camera.InImage(uv)) continue;
-    int best = -1, best_d = std::numeric_limits<int>::max(), second_d = std::numeric_limits<int>::max();
+    int best = -1, best_d = std::numeric_limits<int>::max(),
+        second_d = std::numeric_limits<int>::max();
     const int gx = static_cast<int>(std::floor(uv.x() / cell));
     const int gy = static_cast<int>(std::floor(uv.y() / cell));
     for (int dy = -1; dy <= 1; ++dy) {
@@ -98,8 +104,11 @@ cv::Mat ExtractPatch(const cv::Mat& image, const Eigen::Vector2d& uv, int half_s
     return cv::Mat();
   }
   cv::Mat patch;
-  cv::getRectSubPix(image, cv::Size(size, size), cv::Point2f(static_cast<float>(uv.x()), static_cast<float>(uv.y())),
-                    patch, CV_32F);
+  cv::getRectSubPix(image,
+                    cv::Size(size, size),
+                    cv::Point2f(static_cast<float>(uv.x()), static_cast<float>(uv.y())),
+                    patch,
+                    CV_32F);
   return patch;
 }
 
@@ -127,7 +136,9 @@ std::optional<Eigen::Vector2d> PatchSearch(const cv::Mat& image,
   int bx = 0, by = 0;
   for (int dy = -r; dy <= r; ++dy) {
     for (int dx = -r; dx <= r; ++dx) {
-      if (dx * dx + dy * dy > options.patch_search_radius_px * options.patch_search_radius_px + 1e-9) continue;
+      if (dx * dx + dy * dy >
+          options.patch_search_radius_px * options.patch_search_radius_px + 1e-9)
+        continue;
       const cv::Mat p = ExtractPatch(image, predicted + Eigen::Vector2d(dx, dy), h);
       if (p.empty()) continue;
       const double s = Ncc(patch, p);
@@ -148,8 +159,10 @@ std::optional<Eigen::Vector2d> PatchSearch(const cv::Mat& image,
   };
   const int cx = bx + r, cy = by + r;
   double ox = 0.0, oy = 0.0;
-  if (cx > 0 && cx < w - 1) ox = refine(scores.at<double>(cy, cx - 1), best, scores.at<double>(cy, cx + 1));
-  if (cy > 0 && cy < w - 1) oy = refine(scores.at<double>(cy - 1, cx), best, scores.at<double>(cy + 1, cx));
+  if (cx > 0 && cx < w - 1)
+    ox = refine(scores.at<double>(cy, cx - 1), best, scores.at<double>(cy, cx + 1));
+  if (cy > 0 && cy < w - 1)
+    oy = refine(scores.at<double>(cy - 1, cx), best, scores.at<double>(cy + 1, cx));
   return predicted + Eigen::Vector2d(bx + ox, by + oy);
 }
 

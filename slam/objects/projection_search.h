@@ -5,11 +5,10 @@
 // normalised cross-correlation search around the projection.
 #pragma once
 
-#include <optional>
-#include <vector>
-
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
+#include <optional>
+#include <vector>
 
 #include "slam/geometry/se3.h"
 #include "slam/geometry/stereo_camera.h"
@@ -25,9 +24,9 @@ struct FrameKeypoints {
 
 struct ProjectionSearchOptions {
   double radius_px = 8.0;
-  int max_hamming = 60;       // ORB descriptor distance of a match
-  double ratio = 0.9;         // best / second-best distance (same radius)
-  int patch_half_size = 4;    // (2h+1)² patch for the NCC check
+  int max_hamming = 60;     // ORB descriptor distance of a match
+  double ratio = 0.9;       // best / second-best distance (same radius)
+  int patch_half_size = 4;  // (2h+1)² patch for the NCC check
   double min_ncc = 0.85;
   double patch_search_radius_px = 4.0;
 };

@@ -1,13 +1,13 @@
 #include "slam/objects/twist_estimator.h"
 
+#include <ceres/ceres.h>
+#include <glog/logging.h>
+
+#include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
 #include <memory>
 #include <optional>
-
-#include <Eigen/SVD>
-#include <ceres/ceres.h>
-#include <glog/logging.h>
 
 #include "slam/objects/subspace_manifold.h"
 #include "slam/optimization/cost_functions/twist_tracking_cost.h"
@@ -58,7 +58,8 @@ double Median(std::vector<double>* v) {
 
 absl::Status TwistEstimatorOptions::Validate() const {
   if (max_rounds < 1 || max_iterations < 1) {
-    return absl::InvalidArgumentError("twist estimator needs max_rounds >= 1 and max_iterations >= 1");
+    return absl::InvalidArgumentError(
+        "twist estimator needs max_rounds >= 1 and max_iterations >= 1");
   }
   if (!(huber_delta > 0.0) || !(min_sigma_px > 0.0) || !(max_sigma_px >= min_sigma_px)) {
     return absl::InvalidArgumentError(
@@ -91,12 +92,13 @@ std::optional<Eigen::Vector3d> TwistResidual(const geometry::StereoCamera& camer
                                              const SE3d& world_from_object_previous,
                                              const Vector6d& constrained_twist,
                                              const TwistObservation& obs) {
-  const Eigen::Vector3d p_c = camera_from_world * (SE3d::Exp(constrained_twist) *
-                                                   (world_from_object_previous * obs.point_in_object));
+  const Eigen::Vector3d p_c =
+      camera_from_world *
+      (SE3d::Exp(constrained_twist) * (world_from_object_previous * obs.point_in_object));
   Eigen::Vector3d uvr;
   if (!camera.ProjectStereoChecked(p_c, &uvr, nullptr, 1e-3)) return std::nullopt;
-  return Eigen::Vector3d(obs.uv.x() - uvr.x(), obs.uv.y() - uvr.y(),
-                         obs.stereo() ? obs.u_right - uvr.z() : 0.0);
+  return Eigen::Vector3d(
+      obs.uv.x() - uvr.x(), obs.uv.y() - uvr.y(), obs.stereo() ? obs.u_right - uvr.z() : 0.0);
 }
 
 absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& camera,
@@ -117,8 +119,8 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
   auto residuals_at = [&](const Vector6d& twist) {
     std::vector<std::optional<Eigen::Vector3d>> res(n);
     for (size_t j = 0; j < n; ++j) {
-      res[j] = TwistResidual(camera, camera_from_world, world_from_object_previous, twist,
-                             observations[j]);
+      res[j] = TwistResidual(
+          camera, camera_from_world, world_from_object_previous, twist, observations[j]);
     }
     return res;
   };
@@ -151,12 +153,21 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
       double* x = xi.data();
       for (size_t j = 0; j < n; ++j) {
         if (!active[j]) continue;
-        ceres::CostFunction* cost =
-            observations[j].stereo()
-                ? MakeCost<3>(camera, camera_from_world, world_from_object_previous,
-                              world_projector, observations[j], 1.0 / sigma, options.use_autodiff)
-                : MakeCost<2>(camera, camera_from_world, world_from_object_previous,
-                              world_projector, observations[j], 1.0 / sigma, options.use_autodiff);
+        ceres::CostFunction* cost = observations[j].stereo()
+                                        ? MakeCost<3>(camera,
+                                                      camera_from_world,
+                                                      world_from_object_previous,
+                                                      world_projector,
+                                                      observations[j],
+                                                      1.0 / sigma,
+                                                      options.use_autodiff)
+                                        : MakeCost<2>(camera,
+                                                      camera_from_world,
+                                                      world_from_object_previous,
+                                                      world_projector,
+                                                      observations[j],
+                                                      1.0 / sigma,
+                                                      options.use_autodiff);
         problem.AddResidualBlock(cost, new ceres::HuberLoss(options.huber_delta), x);
       }
       if (basis.cols() < 6) problem.SetManifold(x, new LinearSubspaceManifold(basis));

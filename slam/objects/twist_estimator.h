@@ -16,9 +16,8 @@
 // Pass Π = I for a free (unconstrained) object.
 #pragma once
 
-#include <vector>
-
 #include <Eigen/Core>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -36,16 +35,16 @@ struct TwistObservation {
 };
 
 struct TwistEstimatorOptions {
-  int max_rounds = 4;            // solve / MAD / reject rounds
-  int max_iterations = 20;       // LM iterations per round
-  double huber_delta = 1.345;    // Huber threshold in units of σ
-  double min_sigma_px = 0.25;    // floor on the MAD scale (noise-free data)
-  double max_sigma_px = 50.0;    // ceiling for the first round
+  int max_rounds = 4;          // solve / MAD / reject rounds
+  int max_iterations = 20;     // LM iterations per round
+  double huber_delta = 1.345;  // Huber threshold in units of σ
+  double min_sigma_px = 0.25;  // floor on the MAD scale (noise-free data)
+  double max_sigma_px = 50.0;  // ceiling for the first round
   // χ² gates (95 %) on ‖r/σ‖² for mono (2 dof) and stereo (3 dof) residuals.
   double chi2_mono = 5.991;
   double chi2_stereo = 7.815;
-  int min_inliers = 4;           // fewer -> not successful
-  bool use_autodiff = false;     // check mode: autodiff twin of the cost
+  int min_inliers = 4;        // fewer -> not successful
+  bool use_autodiff = false;  // check mode: autodiff twin of the cost
   double function_tolerance = 1e-12;
   double parameter_tolerance = 1e-12;
 
@@ -59,10 +58,10 @@ struct TwistEstimate {
   geometry::SE3d world_from_object;  // Exp(Π ξ) · world_from_object_{i−1}
   std::vector<bool> inliers;         // per observation
   int num_inliers = 0;
-  double sigma_px = 0.0;             // final MAD scale
-  double inlier_rms_px = 0.0;        // RMS of the inliers' residual norms
+  double sigma_px = 0.0;       // final MAD scale
+  double inlier_rms_px = 0.0;  // RMS of the inliers' residual norms
   int rounds = 0;
-  int iterations = 0;                // LM iterations, all rounds
+  int iterations = 0;  // LM iterations, all rounds
 };
 
 // Basis (6 x k, orthonormal columns) of range(Π); k = rank(Π).

@@ -1,8 +1,8 @@
 #include "slam/semantic/cluster_association.h"
 
-#include <algorithm>
-
 #include <glog/logging.h>
+
+#include <algorithm>
 #include <opencv2/core.hpp>
 
 #include "slam/semantic/hungarian.h"
@@ -38,8 +38,7 @@ absl::Status ClusterAssociationOptions::Validate() const {
   return absl::OkStatus();
 }
 
-ClusterAssociator::ClusterAssociator(const ClusterAssociationOptions& options)
-    : options_(options) {
+ClusterAssociator::ClusterAssociator(const ClusterAssociationOptions& options) : options_(options) {
   CHECK(options_.Validate().ok()) << options_.Validate().message();
 }
 
@@ -123,8 +122,8 @@ AssociationResult ClusterAssociator::Associate(const std::vector<Detection>& det
   for (const auto& [id, c] : clusters_) {
     if (!(options_.stuff_by_class && c.is_stuff)) ids.push_back(id);
   }
-  Eigen::MatrixXd score = Eigen::MatrixXd::Zero(static_cast<int>(things.size()),
-                                                static_cast<int>(ids.size()));
+  Eigen::MatrixXd score =
+      Eigen::MatrixXd::Zero(static_cast<int>(things.size()), static_cast<int>(ids.size()));
   for (size_t r = 0; r < things.size(); ++r) {
     for (size_t col = 0; col < ids.size(); ++col) {
       score(static_cast<int>(r), static_cast<int>(col)) =

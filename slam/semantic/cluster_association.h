@@ -16,11 +16,10 @@
 
 #include <cstdint>
 #include <map>
+#include <opencv2/core.hpp>
 #include <optional>
 #include <unordered_set>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "absl/status/status.h"
 #include "slam/common/frame_result.h"
@@ -46,7 +45,7 @@ enum class ClusterState { kNew = 0, kTracked = 1, kLost = 2 };
 struct ClusterTrack {
   int64_t id = 0;
   int class_id = 0;
-  int instance_id = 0;  // last instance id seen
+  int instance_id = 0;    // last instance id seen
   bool is_stuff = false;  // created from a "stuff" (instance 0) detection
   ClusterState state = ClusterState::kNew;
   cv::Rect2d last_box;
@@ -106,7 +105,9 @@ class ClusterAssociator {
   // Marks map points as members of a cluster (e.g. after triangulation).
   void AddPoints(int64_t id, const std::vector<int64_t>& point_ids);
   // Classes reported as dynamic in ClusterEvent::is_dynamic.
-  void set_dynamic_classes(std::unordered_set<int> classes) { dynamic_classes_ = std::move(classes); }
+  void set_dynamic_classes(std::unordered_set<int> classes) {
+    dynamic_classes_ = std::move(classes);
+  }
 
  private:
   ClusterAssociationOptions options_;

@@ -1,9 +1,9 @@
 #include "slam/semantic/hungarian.h"
 
+#include <glog/logging.h>
+
 #include <algorithm>
 #include <limits>
-
-#include <glog/logging.h>
 
 namespace twist::semantic {
 
@@ -34,7 +34,8 @@ std::vector<int> SolveAssignment(const Eigen::MatrixXd& cost) {
       int j1 = 0;
       for (int j = 1; j <= m; ++j) {
         if (used[static_cast<size_t>(j)]) continue;
-        const double cur = a(i0 - 1, j - 1) - u[static_cast<size_t>(i0)] - v[static_cast<size_t>(j)];
+        const double cur =
+            a(i0 - 1, j - 1) - u[static_cast<size_t>(i0)] - v[static_cast<size_t>(j)];
         if (cur < minv[static_cast<size_t>(j)]) {
           minv[static_cast<size_t>(j)] = cur;
           way[static_cast<size_t>(j)] = j0;

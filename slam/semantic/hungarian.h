@@ -1,9 +1,8 @@
 // Optimal assignment (Hungarian / Kuhn–Munkres with potentials, O(n³)).
 #pragma once
 
-#include <vector>
-
 #include <Eigen/Core>
+#include <vector>
 
 namespace twist::semantic {
 

@@ -1,8 +1,8 @@
 #include "slam/semantic/label_fusion.h"
 
-#include <map>
-
 #include <glog/logging.h>
+
+#include <map>
 
 namespace twist::semantic {
 

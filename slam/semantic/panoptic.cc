@@ -1,10 +1,10 @@
 #include "slam/semantic/panoptic.h"
 
+#include <glog/logging.h>
+
 #include <cmath>
 #include <map>
 #include <string>
-
-#include <glog/logging.h>
 
 namespace twist::semantic {
 namespace {
@@ -41,10 +41,10 @@ absl::Status ValidatePanopticMask(const cv::Mat& mask, cv::Size expected_size) {
                                       std::to_string(mask.channels()) + " channel(s)");
   }
   if (!expected_size.empty() && mask.size() != expected_size) {
-    return absl::InvalidArgumentError(
-        "panoptic mask is " + std::to_string(mask.cols) + "x" + std::to_string(mask.rows) +
-        " but the image is " + std::to_string(expected_size.width) + "x" +
-        std::to_string(expected_size.height));
+    return absl::InvalidArgumentError("panoptic mask is " + std::to_string(mask.cols) + "x" +
+                                      std::to_string(mask.rows) + " but the image is " +
+                                      std::to_string(expected_size.width) + "x" +
+                                      std::to_string(expected_size.height));
   }
   return absl::OkStatus();
 }

@@ -3,12 +3,11 @@
 // camera; negative CV_32SC1 values mean "no label".
 #pragma once
 
+#include <Eigen/Core>
 #include <cstdint>
+#include <opencv2/core.hpp>
 #include <optional>
 #include <vector>
-
-#include <Eigen/Core>
-#include <opencv2/core.hpp>
 
 #include "absl/status/status.h"
 
@@ -67,7 +66,8 @@ struct Segment {
 // Segments of the mask, sorted by (class, instance). Segments with fewer than
 // min_pixels pixels are dropped. With things_only, "stuff" (instance 0) is
 // skipped.
-std::vector<Segment> ExtractSegments(const cv::Mat& mask, int min_pixels = 1,
+std::vector<Segment> ExtractSegments(const cv::Mat& mask,
+                                     int min_pixels = 1,
                                      bool things_only = false);
 
 // Binary CV_8UC1 mask (255 inside) of the pixels carrying `label`.

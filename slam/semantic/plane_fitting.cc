@@ -1,13 +1,13 @@
 #include "slam/semantic/plane_fitting.h"
 
+#include <glog/logging.h>
+
+#include <Eigen/Geometry>
+#include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
 #include <limits>
 #include <string>
-
-#include <Eigen/Geometry>
-#include <Eigen/SVD>
-#include <glog/logging.h>
 
 namespace twist::semantic {
 
@@ -149,8 +149,8 @@ absl::StatusOr<PlaneFit> FitPlaneRansac(const std::vector<Eigen::Vector3d>& poin
       std::max(options.min_inliers, static_cast<int>(std::ceil(options.min_inlier_ratio * n)));
   if (static_cast<int>(best_inliers.size()) < needed) {
     return absl::NotFoundError("no plane with enough inliers: best has " +
-                               std::to_string(best_inliers.size()) + " of " +
-                               std::to_string(n) + " points, need " + std::to_string(needed));
+                               std::to_string(best_inliers.size()) + " of " + std::to_string(n) +
+                               " points, need " + std::to_string(needed));
   }
   // SVD refit on the inliers, then re-collect the inliers of the refined plane
   // (twice: the refit usually gathers a few more).

@@ -7,11 +7,10 @@
 // (n·x + d) / |n| with n = (a, b, c): use PointPlaneDistance.
 #pragma once
 
+#include <Eigen/Core>
 #include <cstdint>
 #include <random>
 #include <vector>
-
-#include <Eigen/Core>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"

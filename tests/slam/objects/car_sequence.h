@@ -6,10 +6,9 @@
 #pragma once
 
 #include <cmath>
+#include <opencv2/core.hpp>
 #include <random>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "slam/objects/joint_frames.h"
 #include "slam/objects/object_tracker.h"
@@ -59,7 +58,8 @@ class CarSequence {
     f.keypoints.descriptors = cv::Mat(0, 32, CV_8UC1);
     std::vector<Eigen::Vector2d> true_uv(points_.size());
     for (size_t k = 0; k < points_.size(); ++k) {
-      const Eigen::Vector3d uvr = cam_.ProjectStereo(Eigen::Vector3d(camera_from_object * points_[k]));
+      const Eigen::Vector3d uvr =
+          cam_.ProjectStereo(Eigen::Vector3d(camera_from_object * points_[k]));
       true_uv[k] = uvr.head<2>();
       if (!detected) continue;
       Eigen::Vector2d uv = uvr.head<2>();
@@ -89,7 +89,8 @@ class CarSequence {
             if (px + dx >= 0 && py + dy >= 0 && px + dx < cam_.width && py + dy < cam_.height) {
               int& who = owner.at<int>(py + dy, px + dx);
               f.flow.at<cv::Vec2f>(py + dy, px + dx) =
-                  who >= 0 ? cv::Vec2f(NAN, NAN) : cv::Vec2f(static_cast<float>(d.x()), static_cast<float>(d.y()));
+                  who >= 0 ? cv::Vec2f(NAN, NAN)
+                           : cv::Vec2f(static_cast<float>(d.x()), static_cast<float>(d.y()));
               who = static_cast<int>(k);
             }
           }

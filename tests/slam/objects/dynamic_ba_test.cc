@@ -1,9 +1,9 @@
 #include "slam/objects/dynamic_ba.h"
 
+#include <gtest/gtest.h>
+
 #include <cstdio>
 #include <random>
-
-#include <gtest/gtest.h>
 
 #include "tests/slam/objects/synthetic_objects.h"
 
@@ -29,7 +29,8 @@ Window MakeWindow(double noise_px, uint64_t seed) {
   DynamicBaProblem& p = w.problem;
   p.camera = KittiLikeCamera();
   for (int i = 0; i < 10; ++i) {
-    const SE3d world_from_camera(geometry::SO3d::Exp(Eigen::Vector3d(0, 0.01 * i, 0)), Eigen::Vector3d(0, 0, 1.0 * i));
+    const SE3d world_from_camera(geometry::SO3d::Exp(Eigen::Vector3d(0, 0.01 * i, 0)),
+                                 Eigen::Vector3d(0, 0, 1.0 * i));
     BaKeyframe kf;
     kf.id = 100 + i;
     kf.timestamp_ns = i * 100'000'000LL;
@@ -39,7 +40,10 @@ Window MakeWindow(double noise_px, uint64_t seed) {
     p.keyframes.push_back(kf);
     w.gt_camera_from_world.push_back(kf.camera_from_world);
   }
-  auto observe = [&](const SE3d& camera_from_point_frame, const Eigen::Vector3d& x, int kf, int idx,
+  auto observe = [&](const SE3d& camera_from_point_frame,
+                     const Eigen::Vector3d& x,
+                     int kf,
+                     int idx,
                      std::vector<BaObservation>* out) {
     Eigen::Vector3d uvr;
     if (!p.camera.ProjectStereoChecked(camera_from_point_frame * x, &uvr, nullptr, 1.0)) return;
@@ -65,7 +69,8 @@ Window MakeWindow(double noise_px, uint64_t seed) {
     sp.point_in_world = x;
     p.points.push_back(sp);
     w.gt_points.push_back(x);
-    for (int i = 0; i < 10; ++i) observe(w.gt_camera_from_world[static_cast<size_t>(i)], x, i, j, &p.observations);
+    for (int i = 0; i < 10; ++i)
+      observe(w.gt_camera_from_world[static_cast<size_t>(i)], x, i, j, &p.observations);
   }
   // The car.
   BaObject car;
@@ -85,7 +90,10 @@ Window MakeWindow(double noise_px, uint64_t seed) {
     car.frames.push_back(f);
     w.gt_world_from_object.push_back(pose);
     for (size_t j = 0; j < car.points_in_object.size(); ++j) {
-      observe(w.gt_camera_from_world[static_cast<size_t>(i)] * pose, car.points_in_object[j], i, static_cast<int>(j),
+      observe(w.gt_camera_from_world[static_cast<size_t>(i)] * pose,
+              car.points_in_object[j],
+              i,
+              static_cast<int>(j),
               &car.observations);
     }
     pose = SE3d::Exp(step) * pose;
@@ -101,10 +109,12 @@ void Perturb(Window* w, uint64_t seed) {
   for (BaKeyframe& kf : p.keyframes) {
     if (kf.fixed) continue;
     Vector6d d;
-    d << 0.05 * g(rng), 0.05 * g(rng), 0.05 * g(rng), 0.004 * g(rng), 0.004 * g(rng), 0.004 * g(rng);
+    d << 0.05 * g(rng), 0.05 * g(rng), 0.05 * g(rng), 0.004 * g(rng), 0.004 * g(rng),
+        0.004 * g(rng);
     kf.camera_from_world = kf.camera_from_world * SE3d::Exp(d);
   }
-  for (BaStaticPoint& sp : p.points) sp.point_in_world += 0.1 * Eigen::Vector3d(g(rng), g(rng), g(rng));
+  for (BaStaticPoint& sp : p.points)
+    sp.point_in_world += 0.1 * Eigen::Vector3d(g(rng), g(rng), g(rng));
   for (BaObject& obj : p.objects) {
     for (BaObjectFrame& f : obj.frames) {
       if (f.fixed) continue;
@@ -112,7 +122,8 @@ void Perturb(Window* w, uint64_t seed) {
       d << 0.15 * g(rng), 0.15 * g(rng), 0.15 * g(rng), 0.01 * g(rng), 0.01 * g(rng), 0.01 * g(rng);
       f.world_from_object = SE3d::Exp(obj.world_projector * d) * f.world_from_object;  // in-plane
     }
-    for (Eigen::Vector3d& x : obj.points_in_object) x += 0.05 * Eigen::Vector3d(g(rng), g(rng), g(rng));
+    for (Eigen::Vector3d& x : obj.points_in_object)
+      x += 0.05 * Eigen::Vector3d(g(rng), g(rng), g(rng));
   }
 }
 
@@ -125,7 +136,8 @@ struct Errors {
 Errors Measure(const Window& w) {
   Errors e;
   for (size_t i = 0; i < w.problem.keyframes.size(); ++i) {
-    e.camera_m += TranslationError(w.problem.keyframes[i].camera_from_world.Inverse(), w.gt_camera_from_world[i].Inverse());
+    e.camera_m += TranslationError(w.problem.keyframes[i].camera_from_world.Inverse(),
+                                   w.gt_camera_from_world[i].Inverse());
   }
   e.camera_m /= w.problem.keyframes.size();
   const BaObject& car = w.problem.objects[0];
@@ -143,7 +155,8 @@ TEST(DynamicBa, ValidatesTheProblem) {
   EXPECT_TRUE(w.problem.Validate().ok());
   DynamicBaProblem bad = w.problem;
   bad.observations[0].keyframe = 99;
-  EXPECT_EQ(SolveDynamicBa(&bad, DynamicBaOptions{}).status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(SolveDynamicBa(&bad, DynamicBaOptions{}).status().code(),
+            absl::StatusCode::kInvalidArgument);
   bad = w.problem;
   bad.objects[0].observations[0].keyframe = 0;  // the car has no pose in keyframe 0
   EXPECT_EQ(bad.Validate().code(), absl::StatusCode::kInvalidArgument);
@@ -161,11 +174,22 @@ TEST(DynamicBa, LowersErrorOnAPerturbedWindow) {
   ASSERT_TRUE(summary.ok()) << summary.status();
   ASSERT_TRUE(summary->usable) << summary->message;
   const Errors after = Measure(w);
-  std::printf("[dynamic BA] camera %.4f -> %.4f m, object %.4f -> %.4f m, %.4f -> %.4f deg; cost %.1f -> %.1f "
-              "(%d static, %d dynamic, %d const-velocity terms, %d iterations)\n",
-              before.camera_m, after.camera_m, before.object_m, after.object_m, before.object_deg, after.object_deg,
-              summary->initial_cost, summary->final_cost, summary->num_static_terms, summary->num_dynamic_terms,
-              summary->num_const_velocity_terms, summary->iterations);
+  std::printf(
+      "[dynamic BA] camera %.4f -> %.4f m, object %.4f -> %.4f m, %.4f -> %.4f deg; cost %.1f -> "
+      "%.1f "
+      "(%d static, %d dynamic, %d const-velocity terms, %d iterations)\n",
+      before.camera_m,
+      after.camera_m,
+      before.object_m,
+      after.object_m,
+      before.object_deg,
+      after.object_deg,
+      summary->initial_cost,
+      summary->final_cost,
+      summary->num_static_terms,
+      summary->num_dynamic_terms,
+      summary->num_const_velocity_terms,
+      summary->iterations);
   EXPECT_LT(summary->final_cost, summary->initial_cost);
   EXPECT_LT(after.camera_m, 0.3 * before.camera_m);
   EXPECT_LT(after.object_m, 0.3 * before.object_m);
@@ -200,8 +224,12 @@ TEST(DynamicBa, DenseSchurAndUnconstrainedAlsoConverge) {
     const auto summary = SolveDynamicBa(&w.problem, options);
     ASSERT_TRUE(summary.ok() && summary->usable);
     const Errors after = Measure(w);
-    std::printf("[dynamic BA %s] object %.4f -> %.4f m, %.4f -> %.4f deg\n", constrained ? "planar" : "free",
-                before.object_m, after.object_m, before.object_deg, after.object_deg);
+    std::printf("[dynamic BA %s] object %.4f -> %.4f m, %.4f -> %.4f deg\n",
+                constrained ? "planar" : "free",
+                before.object_m,
+                after.object_m,
+                before.object_deg,
+                after.object_deg);
     EXPECT_LT(after.object_m, 0.5 * before.object_m);
     EXPECT_LT(after.camera_m, 0.5 * before.camera_m);
   }
@@ -230,7 +258,9 @@ TEST(DynamicBa, ConstantVelocityTermSmoothsTheTwists) {
     with += spread(a.problem.objects[0]);
     without += spread(b.problem.objects[0]);
   }
-  std::printf("[dynamic BA] step-twist spread: with constant velocity %.4f m, without %.4f m\n", with / 3, without / 3);
+  std::printf("[dynamic BA] step-twist spread: with constant velocity %.4f m, without %.4f m\n",
+              with / 3,
+              without / 3);
   EXPECT_LT(with, without);
 }
 

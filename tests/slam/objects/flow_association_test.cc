@@ -1,9 +1,9 @@
 #include "slam/objects/flow_association.h"
 
-#include <random>
-
 #include <gtest/gtest.h>
+
 #include <opencv2/imgproc.hpp>
+#include <random>
 
 #include "slam/objects/projection_search.h"
 
@@ -33,7 +33,8 @@ Rendered RenderMovingPatch(const cv::Point2d& shift, uint64_t seed) {
   // Object mask and its warped version so that only the object moves.
   cv::Mat moved;
   const cv::Mat m = (cv::Mat_<double>(2, 3) << 1, 0, shift.x, 0, 1, shift.y);
-  cv::warpAffine(r.prev, moved, m, r.prev.size(), cv::INTER_CUBIC, cv::BORDER_CONSTANT, cv::Scalar(128));
+  cv::warpAffine(
+      r.prev, moved, m, r.prev.size(), cv::INTER_CUBIC, cv::BORDER_CONSTANT, cv::Scalar(128));
   cv::Mat mask(r.prev.size(), CV_8UC1, cv::Scalar(0));
   mask(r.object).setTo(255);
   cv::Mat moved_mask;
@@ -46,7 +47,8 @@ Rendered RenderMovingPatch(const cv::Point2d& shift, uint64_t seed) {
 std::vector<Eigen::Vector2d> InteriorGrid(const cv::Rect& box, int margin, int step) {
   std::vector<Eigen::Vector2d> pts;
   for (int y = box.y + margin; y < box.y + box.height - margin; y += step) {
-    for (int x = box.x + margin; x < box.x + box.width - margin; x += step) pts.emplace_back(x + 0.3, y + 0.6);
+    for (int x = box.x + margin; x < box.x + box.width - margin; x += step)
+      pts.emplace_back(x + 0.3, y + 0.6);
   }
   return pts;
 }
@@ -62,7 +64,8 @@ TEST(FlowAssociation, SparseLucasKanadeRecoversKnownShift) {
   for (size_t k = 0; k < pts.size(); ++k) {
     if (!(*tracked)[k]) continue;
     ++ok;
-    max_err = std::max(max_err, ((*(*tracked)[k] - pts[k]) - Eigen::Vector2d(shift.x, shift.y)).norm());
+    max_err =
+        std::max(max_err, ((*(*tracked)[k] - pts[k]) - Eigen::Vector2d(shift.x, shift.y)).norm());
   }
   EXPECT_GE(ok, static_cast<int>(0.95 * pts.size()));
   EXPECT_LT(max_err, 0.1);
@@ -153,11 +156,11 @@ TEST(ProjectionSearch, DescriptorSearchByProjection) {
   kps.descriptors.row(1).setTo(255);
   desc[2].copyTo(kps.descriptors.row(2));
   kps.descriptors.at<uint8_t>(2, 0) ^= 1;
-  const auto match = SearchByProjection(cam, geometry::SE3d(), pts, desc, {false, false, false}, kps,
-                                        ProjectionSearchOptions{});
+  const auto match = SearchByProjection(
+      cam, geometry::SE3d(), pts, desc, {false, false, false}, kps, ProjectionSearchOptions{});
   EXPECT_EQ(match, (std::vector<int>{-1, 0, 2}));
-  const auto skipped = SearchByProjection(cam, geometry::SE3d(), pts, desc, {false, true, false}, kps,
-                                          ProjectionSearchOptions{});
+  const auto skipped = SearchByProjection(
+      cam, geometry::SE3d(), pts, desc, {false, true, false}, kps, ProjectionSearchOptions{});
   EXPECT_EQ(skipped, (std::vector<int>{-1, -1, 2}));
 }
 

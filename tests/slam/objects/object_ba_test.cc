@@ -1,8 +1,8 @@
 #include "slam/objects/object_ba.h"
 
-#include <cstdio>
-
 #include <gtest/gtest.h>
+
+#include <cstdio>
 
 #include "tests/slam/objects/car_sequence.h"
 
@@ -46,7 +46,8 @@ TEST(ObjectBa, TrackerWindowRefinedByDynamicBa) {
     return std::make_pair(sum / (o.history.size() - 1), rot / (o.history.size() - 1));
   };
   const auto before = drift(tracker.objects().at(id));
-  const std::vector<ObjectBaLink> links = AddTrackedObjectsToBa(tracker, keyframe_of_frame, ObjectBaOptions{}, &problem);
+  const std::vector<ObjectBaLink> links =
+      AddTrackedObjectsToBa(tracker, keyframe_of_frame, ObjectBaOptions{}, &problem);
   ASSERT_EQ(links.size(), 1u);
   EXPECT_EQ(problem.objects[0].frames.size(), 15u);
   EXPECT_TRUE(problem.objects[0].frames[0].fixed);
@@ -54,8 +55,14 @@ TEST(ObjectBa, TrackerWindowRefinedByDynamicBa) {
   ASSERT_TRUE(summary.ok() && summary->usable);
   ApplyBaToTrackedObjects(problem, links, &tracker);
   const auto after = drift(tracker.objects().at(id));
-  std::printf("[tracker + dynamic BA] mean trajectory error %.3f m / %.3f deg -> %.3f m / %.3f deg (%d dynamic terms)\n",
-              before.first, before.second, after.first, after.second, summary->num_dynamic_terms);
+  std::printf(
+      "[tracker + dynamic BA] mean trajectory error %.3f m / %.3f deg -> %.3f m / %.3f deg (%d "
+      "dynamic terms)\n",
+      before.first,
+      before.second,
+      after.first,
+      after.second,
+      summary->num_dynamic_terms);
   EXPECT_LT(after.first, 0.7 * before.first);
   EXPECT_LT(after.second, before.second);
   // The tracker continues from the refined state.

@@ -1,9 +1,9 @@
 #include "slam/objects/object_tracker.h"
 
+#include <gtest/gtest.h>
+
 #include <cstdio>
 #include <random>
-
-#include <gtest/gtest.h>
 
 #include "slam/objects/joint_frames.h"
 #include "slam/semantic/plane_fitting.h"
@@ -99,11 +99,18 @@ TEST(ObjectTracker, NoisyTrackingAndUnconstrainedSwitch) {
       const SE3d gt_motion = seq.world_from_object() * gt0.Inverse();
       max_t = std::max(max_t, TranslationError(est_motion, gt_motion));
       max_r = std::max(max_r, RotationErrorDeg(est_motion, gt_motion));
-      const double true_speed = (seq.step().head<3>() + seq.step().tail<3>().cross(seq.world_from_object().translation())).norm() / 0.1;
+      const double true_speed =
+          (seq.step().head<3>() + seq.step().tail<3>().cross(seq.world_from_object().translation()))
+              .norm() /
+          0.1;
       speed_err = std::max(speed_err, std::abs(r.speed_mps - true_speed));
     }
-    std::printf("[tracker %s] max drift over 20 frames: %.3f m, %.3f deg; max speed error %.3f m/s\n",
-                constrained ? "planar" : "free", max_t, max_r, speed_err);
+    std::printf(
+        "[tracker %s] max drift over 20 frames: %.3f m, %.3f deg; max speed error %.3f m/s\n",
+        constrained ? "planar" : "free",
+        max_t,
+        max_r,
+        speed_err);
     // Frame-to-frame tracking only (no bundle adjustment): stereo depth noise
     // of ~0.4 m per point at 15-20 m makes the per-frame speed noisy.
     EXPECT_LT(max_t, constrained ? 0.5 : 1.0);

@@ -2,11 +2,10 @@
 // revolute door in a wall, with exact ground truth (projected known points).
 #pragma once
 
-#include <random>
-#include <vector>
-
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <random>
+#include <vector>
 
 #include "slam/geometry/se3.h"
 #include "slam/geometry/stereo_camera.h"
@@ -65,9 +64,15 @@ inline std::vector<Eigen::Vector3d> CarPoints(int n, std::mt19937_64* rng) {
   for (int k = 0; k < n; ++k) {
     Eigen::Vector3d p(ux(*rng), uy(*rng), uz(*rng));
     switch (face(*rng)) {
-      case 0: p.x() = p.x() > 0 ? 0.9 : -0.9; break;
-      case 1: p.y() = p.y() > 0 ? 2.2 : -2.2; break;
-      default: p.z() = 1.5; break;
+      case 0:
+        p.x() = p.x() > 0 ? 0.9 : -0.9;
+        break;
+      case 1:
+        p.y() = p.y() > 0 ? 2.2 : -2.2;
+        break;
+      default:
+        p.z() = 1.5;
+        break;
     }
     pts.push_back(p);
   }
@@ -86,7 +91,8 @@ inline std::vector<TwistObservation> Observe(const geometry::StereoCamera& cam,
   std::normal_distribution<double> g(0.0, noise_px > 0 ? noise_px : 1.0);
   std::vector<TwistObservation> obs;
   for (const Eigen::Vector3d& p : points) {
-    const Eigen::Vector3d uvr = cam.ProjectStereo(Eigen::Vector3d(camera_from_world * (world_from_object * p)));
+    const Eigen::Vector3d uvr =
+        cam.ProjectStereo(Eigen::Vector3d(camera_from_world * (world_from_object * p)));
     TwistObservation o;
     o.point_in_object = p;
     o.uv = uvr.head<2>();

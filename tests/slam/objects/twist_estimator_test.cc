@@ -1,8 +1,8 @@
 #include "slam/objects/twist_estimator.h"
 
-#include <cstdio>
-
 #include <gtest/gtest.h>
+
+#include <cstdio>
 
 #include "tests/slam/objects/synthetic_objects.h"
 
@@ -63,12 +63,18 @@ class CarTwist : public ::testing::TestWithParam<bool> {};  // param: stereo
 TEST_P(CarTwist, RecoversKnownTwistExactlyWithoutNoise) {
   const CarScene s = MakeCarScene(40, 15.0, 1);
   std::mt19937_64 rng(2);
-  const auto obs = Observe(s.cam, s.camera_from_world, s.world_from_object_true, s.points, GetParam(), 0.0, &rng);
+  const auto obs = Observe(
+      s.cam, s.camera_from_world, s.world_from_object_true, s.points, GetParam(), 0.0, &rng);
   for (bool autodiff : {false, true}) {
     TwistEstimatorOptions options;
     options.use_autodiff = autodiff;
-    const auto est = EstimateObjectTwist(s.cam, s.camera_from_world, s.world_from_object_prev, s.projector,
-                                         obs, Vector6d::Zero(), options);
+    const auto est = EstimateObjectTwist(s.cam,
+                                         s.camera_from_world,
+                                         s.world_from_object_prev,
+                                         s.projector,
+                                         obs,
+                                         Vector6d::Zero(),
+                                         options);
     ASSERT_TRUE(est.ok()) << est.status();
     ASSERT_TRUE(est->success);
     EXPECT_LT((est->twist - s.true_twist).norm(), 1e-7) << est->twist.transpose();
@@ -81,9 +87,15 @@ TEST_P(CarTwist, RecoversKnownTwistExactlyWithoutNoise) {
 TEST_P(CarTwist, WithinToleranceUnderPixelNoise) {
   const CarScene s = MakeCarScene(40, 15.0, 4);
   std::mt19937_64 rng(5);
-  const auto obs = Observe(s.cam, s.camera_from_world, s.world_from_object_true, s.points, GetParam(), 0.7, &rng);
-  const auto est = EstimateObjectTwist(s.cam, s.camera_from_world, s.world_from_object_prev, s.projector, obs,
-                                       Vector6d::Zero(), TwistEstimatorOptions{});
+  const auto obs = Observe(
+      s.cam, s.camera_from_world, s.world_from_object_true, s.points, GetParam(), 0.7, &rng);
+  const auto est = EstimateObjectTwist(s.cam,
+                                       s.camera_from_world,
+                                       s.world_from_object_prev,
+                                       s.projector,
+                                       obs,
+                                       Vector6d::Zero(),
+                                       TwistEstimatorOptions{});
   ASSERT_TRUE(est.ok() && est->success);
   EXPECT_LT(TranslationError(est->world_from_object, s.world_from_object_true), 0.05);
   EXPECT_LT(RotationErrorDeg(est->world_from_object, s.world_from_object_true), 0.3);
@@ -94,7 +106,8 @@ TEST_P(CarTwist, WithinToleranceUnderPixelNoise) {
 TEST_P(CarTwist, RejectsTwentyPercentOutliers) {
   const CarScene s = MakeCarScene(50, 15.0, 6);
   std::mt19937_64 rng(7);
-  auto obs = Observe(s.cam, s.camera_from_world, s.world_from_object_true, s.points, GetParam(), 0.5, &rng);
+  auto obs = Observe(
+      s.cam, s.camera_from_world, s.world_from_object_true, s.points, GetParam(), 0.5, &rng);
   std::uniform_real_distribution<double> mag(8.0, 40.0), ang(0.0, 2 * M_PI);
   std::vector<bool> is_outlier(obs.size(), false);
   for (size_t k = 0; k < obs.size(); k += 5) {  // 20 %
@@ -103,8 +116,13 @@ TEST_P(CarTwist, RejectsTwentyPercentOutliers) {
     if (obs[k].stereo()) obs[k].u_right = obs[k].uv.x() - 30.0;  // wrong disparity too
     is_outlier[k] = true;
   }
-  const auto est = EstimateObjectTwist(s.cam, s.camera_from_world, s.world_from_object_prev, s.projector, obs,
-                                       Vector6d::Zero(), TwistEstimatorOptions{});
+  const auto est = EstimateObjectTwist(s.cam,
+                                       s.camera_from_world,
+                                       s.world_from_object_prev,
+                                       s.projector,
+                                       obs,
+                                       Vector6d::Zero(),
+                                       TwistEstimatorOptions{});
   ASSERT_TRUE(est.ok() && est->success);
   EXPECT_LT(TranslationError(est->world_from_object, s.world_from_object_true), 0.05);
   EXPECT_LT(RotationErrorDeg(est->world_from_object, s.world_from_object_true), 0.3);
@@ -142,9 +160,15 @@ TEST(TwistEstimator, RevoluteDoorRecoversKnownTwist) {
   for (int k = 0; k < 30; ++k) pts.push_back({ux(rng), uy(rng), uz(rng)});
   const SE3d camera_from_world;  // camera at the origin
   for (double noise : {0.0, 0.5}) {
-    const auto obs = Observe(cam, camera_from_world, world_from_object_true, pts, false, noise, &rng);
-    const auto est = EstimateObjectTwist(cam, camera_from_world, world_from_object_prev, pi, obs,
-                                         Vector6d::Zero(), TwistEstimatorOptions{});
+    const auto obs =
+        Observe(cam, camera_from_world, world_from_object_true, pts, false, noise, &rng);
+    const auto est = EstimateObjectTwist(cam,
+                                         camera_from_world,
+                                         world_from_object_prev,
+                                         pi,
+                                         obs,
+                                         Vector6d::Zero(),
+                                         TwistEstimatorOptions{});
     ASSERT_TRUE(est.ok() && est->success);
     if (noise == 0.0) {
       EXPECT_LT((est->twist - true_twist).norm(), 1e-7);
@@ -152,23 +176,36 @@ TEST(TwistEstimator, RevoluteDoorRecoversKnownTwist) {
       EXPECT_LT(RotationErrorDeg(est->world_from_object, world_from_object_true), 0.5);
     }
     // Only a rotation about the hinge: the hinge point does not move.
-    EXPECT_LT((SE3d::Exp(est->twist) * world_from_joint.translation() - world_from_joint.translation()).norm(),
-              1e-9);
+    EXPECT_LT(
+        (SE3d::Exp(est->twist) * world_from_joint.translation() - world_from_joint.translation())
+            .norm(),
+        1e-9);
   }
 }
 
 TEST(TwistEstimator, TooFewPointsIsAnUnsuccessfulEstimateNotAnError) {
   const CarScene s = MakeCarScene(3, 15.0, 9);
   std::mt19937_64 rng(10);
-  const auto obs = Observe(s.cam, s.camera_from_world, s.world_from_object_true, s.points, true, 0.0, &rng);
-  const auto est = EstimateObjectTwist(s.cam, s.camera_from_world, s.world_from_object_prev, s.projector, obs,
-                                       Vector6d::Zero(), TwistEstimatorOptions{});
+  const auto obs =
+      Observe(s.cam, s.camera_from_world, s.world_from_object_true, s.points, true, 0.0, &rng);
+  const auto est = EstimateObjectTwist(s.cam,
+                                       s.camera_from_world,
+                                       s.world_from_object_prev,
+                                       s.projector,
+                                       obs,
+                                       Vector6d::Zero(),
+                                       TwistEstimatorOptions{});
   ASSERT_TRUE(est.ok());
   EXPECT_FALSE(est->success);
   TwistEstimatorOptions bad;
   bad.huber_delta = 0.0;
-  EXPECT_FALSE(EstimateObjectTwist(s.cam, s.camera_from_world, s.world_from_object_prev, s.projector, obs,
-                                   Vector6d::Zero(), bad)
+  EXPECT_FALSE(EstimateObjectTwist(s.cam,
+                                   s.camera_from_world,
+                                   s.world_from_object_prev,
+                                   s.projector,
+                                   obs,
+                                   Vector6d::Zero(),
+                                   bad)
                    .ok());
 }
 
@@ -181,25 +218,45 @@ TEST(TwistEstimator, PlanarJointBeatsFreeMotionUnderNoise) {
   for (int t = 0; t < trials; ++t) {
     const CarScene s = MakeCarScene(15, 25.0, 100 + static_cast<uint64_t>(t));
     std::mt19937_64 rng(200 + static_cast<uint64_t>(t));
-    const auto obs = Observe(s.cam, s.camera_from_world, s.world_from_object_true, s.points, true, 1.0, &rng);
-    const auto c = EstimateObjectTwist(s.cam, s.camera_from_world, s.world_from_object_prev, s.projector, obs,
-                                       Vector6d::Zero(), TwistEstimatorOptions{});
-    const auto f = EstimateObjectTwist(s.cam, s.camera_from_world, s.world_from_object_prev,
-                                       Matrix6d::Identity(), obs, Vector6d::Zero(), TwistEstimatorOptions{});
+    const auto obs =
+        Observe(s.cam, s.camera_from_world, s.world_from_object_true, s.points, true, 1.0, &rng);
+    const auto c = EstimateObjectTwist(s.cam,
+                                       s.camera_from_world,
+                                       s.world_from_object_prev,
+                                       s.projector,
+                                       obs,
+                                       Vector6d::Zero(),
+                                       TwistEstimatorOptions{});
+    const auto f = EstimateObjectTwist(s.cam,
+                                       s.camera_from_world,
+                                       s.world_from_object_prev,
+                                       Matrix6d::Identity(),
+                                       obs,
+                                       Vector6d::Zero(),
+                                       TwistEstimatorOptions{});
     ASSERT_TRUE(c.ok() && f.ok() && c->success && f->success);
     rot_c += RotationErrorDeg(c->world_from_object, s.world_from_object_true);
     rot_f += RotationErrorDeg(f->world_from_object, s.world_from_object_true);
     trans_c += TranslationError(c->world_from_object, s.world_from_object_true);
     trans_f += TranslationError(f->world_from_object, s.world_from_object_true);
     // Height above the road (world y) of the object origin.
-    height_c += std::abs(c->world_from_object.translation().y() - s.world_from_object_true.translation().y());
-    height_f += std::abs(f->world_from_object.translation().y() - s.world_from_object_true.translation().y());
+    height_c += std::abs(c->world_from_object.translation().y() -
+                         s.world_from_object_true.translation().y());
+    height_f += std::abs(f->world_from_object.translation().y() -
+                         s.world_from_object_true.translation().y());
   }
-  std::printf("[constrained vs free] mean rotation error: planar %.4f deg, free %.4f deg; "
-              "mean translation error: planar %.4f m, free %.4f m; mean height error: planar %.4f m, free %.4f m "
-              "(%d trials, 15 stereo points, 1 px noise, 25 m)\n",
-              rot_c / trials, rot_f / trials, trans_c / trials, trans_f / trials, height_c / trials,
-              height_f / trials, trials);
+  std::printf(
+      "[constrained vs free] mean rotation error: planar %.4f deg, free %.4f deg; "
+      "mean translation error: planar %.4f m, free %.4f m; mean height error: planar %.4f m, free "
+      "%.4f m "
+      "(%d trials, 15 stereo points, 1 px noise, 25 m)\n",
+      rot_c / trials,
+      rot_f / trials,
+      trans_c / trials,
+      trans_f / trials,
+      height_c / trials,
+      height_f / trials,
+      trials);
   EXPECT_LT(rot_c, 0.7 * rot_f);
   // Depth dominates the translation error and lies in the plane: the joint
   // cannot help there, but it removes the vertical drift entirely.

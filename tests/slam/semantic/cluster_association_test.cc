@@ -42,8 +42,7 @@ struct Car {
   std::vector<int64_t> points;
 };
 
-Detection MakeDetection(const Car& car, int instance, int frame, bool with_points,
-                        bool with_mask) {
+Detection MakeDetection(const Car& car, int instance, int frame, bool with_points, bool with_mask) {
   Detection d;
   d.label = {26, instance};
   d.box = car.box;
@@ -139,7 +138,8 @@ TEST(ClusterAssociation, LostAfterNFramesThenRefoundThenRemoved) {
   EXPECT_EQ(lost.events[0].type, ClusterEventType::kLost);
   EXPECT_EQ(assoc.clusters().at(id).state, ClusterState::kLost);
   // Re-found by its points although the segmenter gave it a new id.
-  const AssociationResult back = assoc.Associate({Detection{{26, 4}, {5, 0, 50, 50}, cv::Mat(), {2, 3}}});
+  const AssociationResult back =
+      assoc.Associate({Detection{{26, 4}, {5, 0, 50, 50}, cv::Mat(), {2, 3}}});
   EXPECT_EQ(back.cluster_of_detection[0], id);
   EXPECT_EQ(assoc.clusters().at(id).state, ClusterState::kTracked);
   for (int k = 0; k < 4; ++k) EXPECT_TRUE(assoc.Associate({}).removed.empty());
@@ -150,8 +150,9 @@ TEST(ClusterAssociation, LostAfterNFramesThenRefoundThenRemoved) {
 TEST(ClusterAssociation, StuffIsOneClusterPerClass) {
   ClusterAssociator assoc(ClusterAssociationOptions{});
   assoc.set_dynamic_classes({26});
-  const AssociationResult r0 = assoc.Associate(
-      {Detection{{7, 0}, {0, 100, 400, 100}, cv::Mat(), {}}, Detection{{26, 1}, {0, 0, 50, 50}, cv::Mat(), {}}});
+  const AssociationResult r0 =
+      assoc.Associate({Detection{{7, 0}, {0, 100, 400, 100}, cv::Mat(), {}},
+                       Detection{{26, 1}, {0, 0, 50, 50}, cv::Mat(), {}}});
   ASSERT_EQ(r0.events.size(), 2u);
   EXPECT_FALSE(r0.events[0].is_dynamic);
   EXPECT_TRUE(r0.events[1].is_dynamic);

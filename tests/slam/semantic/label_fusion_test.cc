@@ -60,7 +60,8 @@ TEST(LabelFusion, NoisyObservationsConvergeToTruth) {
   };
   for (int k = 0; k < 200; ++k) {
     if (next() % 10 < 3) {
-      labels.push_back(PanopticLabel{static_cast<int>(7 + next() % 20), static_cast<int>(next() % 4)});
+      labels.push_back(
+          PanopticLabel{static_cast<int>(7 + next() % 20), static_cast<int>(next() % 4)});
     } else if (next() % 10 == 0) {
       labels.push_back(std::nullopt);
     } else {

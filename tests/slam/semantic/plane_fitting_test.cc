@@ -1,19 +1,21 @@
 #include "slam/semantic/plane_fitting.h"
 
-#include <algorithm>
-#include <cmath>
+#include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
-
-#include <gtest/gtest.h>
+#include <algorithm>
+#include <cmath>
 
 namespace twist::semantic {
 namespace {
 
 // Points on the plane n·x + d = 0 with Gaussian noise along n, plus a share
 // of gross outliers spread in a box around it.
-std::vector<Eigen::Vector3d> MakePlanePoints(const Eigen::Vector3d& n, double d, int num,
-                                             double outlier_ratio, double noise,
+std::vector<Eigen::Vector3d> MakePlanePoints(const Eigen::Vector3d& n,
+                                             double d,
+                                             int num,
+                                             double outlier_ratio,
+                                             double noise,
                                              std::mt19937_64* rng) {
   const Eigen::Vector3d normal = n.normalized();
   Eigen::Vector3d u = normal.unitOrthogonal();
@@ -53,8 +55,8 @@ TEST(PlaneFitting, LeastSquaresIsExactOnNoiseFreePoints) {
   const auto pts = MakePlanePoints({0.1, -1.0, 0.05}, 1.6, 50, 0.0, 0.0, &rng);
   const auto plane = FitPlaneLeastSquares(pts);
   ASSERT_TRUE(plane.ok());
-  const Eigen::Vector4d truth = NormalizePlane(Eigen::Vector4d(0.1, -1.0, 0.05, 1.6 *
-                                                               Eigen::Vector3d(0.1, -1.0, 0.05).norm()));
+  const Eigen::Vector4d truth = NormalizePlane(
+      Eigen::Vector4d(0.1, -1.0, 0.05, 1.6 * Eigen::Vector3d(0.1, -1.0, 0.05).norm()));
   EXPECT_LT((*plane - truth).norm(), 1e-9);
   EXPECT_FALSE(FitPlaneLeastSquares({{0, 0, 0}, {1, 1, 1}, {2, 2, 2}}).ok());
   EXPECT_FALSE(FitPlaneLeastSquares({{0, 0, 0}, {1, 1, 1}}).ok());
