@@ -67,6 +67,43 @@ inline float Fbm(float x, float y, float freq, int octaves, float gain, float fw
   return norm > 0.0f ? sum / norm * 1.6f : 0.0f;
 }
 
+// Anisotropic variant for surfaces seen at grazing angles (the road): the
+// footprint is fw_x along x and fw_y along y. Each octave is kept while the
+// *smaller* footprint resolves it, and box-filtered along the longer axis by
+// averaging up to `max_taps` samples spread over the footprint. Keeps the
+// fine grain across the image rows that stereo matching needs.
+inline float FbmAniso(float x, float y, float freq, int octaves, float gain, float fw_x, float fw_y,
+                      uint32_t seed, int max_taps = 8) {
+  const float fmin = std::min(fw_x, fw_y), fmax = std::max(fw_x, fw_y);
+  const bool major_x = fw_x >= fw_y;
+  float sum = 0.0f, amp = 1.0f, norm = 0.0f;
+  for (int o = 0; o < octaves; ++o) {
+    norm += amp;
+    const float w = BandWeight(freq * fmin);
+    if (w <= 0.0f) break;
+    const uint32_t oseed = seed + 1013u * static_cast<uint32_t>(o);
+    const int taps = std::min(max_taps, std::max(1, static_cast<int>(std::ceil(freq * fmax / 0.3f))));
+    float v = 0.0f;
+    if (taps == 1) {
+      v = ValueNoise(x * freq, y * freq, oseed);
+    } else {
+      const float step = fmax / static_cast<float>(taps);
+      for (int k = 0; k < taps; ++k) {
+        const float off = (static_cast<float>(k) + 0.5f) * step - 0.5f * fmax;
+        v += major_x ? ValueNoise((x + off) * freq, y * freq, oseed)
+                     : ValueNoise(x * freq, (y + off) * freq, oseed);
+      }
+      v /= static_cast<float>(taps);
+      // What the taps cannot represent any more (wavelength < spacing) is gone.
+      v *= BandWeight(freq * step);
+    }
+    sum += amp * w * v;
+    freq *= 2.03f;
+    amp *= gain;
+  }
+  return norm > 0.0f ? sum / norm * 1.6f : 0.0f;
+}
+
 // Integral of a pulse train of period `p` that is 1 on [0, duty*p) of each period.
 inline float PulseIntegral(float x, float p, float duty) {
   const float n = std::floor(x / p);

@@ -197,7 +197,7 @@ cv::Mat Renderer::Shade(const Scene& scene, double t, const std::vector<Quad>& q
   // Ground shadows of the cars.
   std::vector<GroundShadow> shadows;
   for (const SceneObject& object : scene.objects) {
-    if (object.kind != MotionKind::kPlanar) continue;
+    if (object.class_id != kClassCar) continue;
     const geometry::SE3d world_from_object = object.WorldFromObject(t);
     GroundShadow g;
     g.object_from_world = world_from_object.Inverse();

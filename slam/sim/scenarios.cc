@@ -66,7 +66,7 @@ bool Overlaps(const std::vector<Interval>& excl, double lo, double hi) {
 
 class Builder {
  public:
-  Builder(Scenario* scenario, uint32_t seed) : sc_(scenario), scene_(&scenario->scene), rng_(seed) {
+  Builder(Scenario* scenario, uint32_t seed) : scene_(&scenario->scene), rng_(seed) {
     scene_->sky_seed = rng_.Seed();
     Material road;
     road.pattern = Pattern::kAsphalt;
@@ -144,19 +144,19 @@ class Builder {
     const double sw = kSidewalkWidth;
     if (edges & kWest) {
       BuildingRow(/*along_z=*/true, x0 + sw, +1.0, z0, z1, no_building_z);
-      Furniture(true, x0 + 0.7, z0 + 2.0, z1 - 2.0, -1.0);
+      Furniture(true, x0 + 0.7, z0 + 2.0, z1 - 2.0, -1.0, no_building_z);
     }
     if (edges & kEast) {
       BuildingRow(true, x1 - sw, -1.0, z0, z1, no_building_z);
-      Furniture(true, x1 - 0.7, z0 + 2.0, z1 - 2.0, +1.0);
+      Furniture(true, x1 - 0.7, z0 + 2.0, z1 - 2.0, +1.0, no_building_z);
     }
     if (edges & kSouth) {
       BuildingRow(false, z0 + sw, +1.0, x0, x1, {});
-      Furniture(false, z0 + 0.7, x0 + 2.0, x1 - 2.0, -1.0);
+      Furniture(false, z0 + 0.7, x0 + 2.0, x1 - 2.0, -1.0, {});
     }
     if (edges & kNorth) {
       BuildingRow(false, z1 - sw, -1.0, x0, x1, {});
-      Furniture(false, z1 - 0.7, x0 + 2.0, x1 - 2.0, +1.0);
+      Furniture(false, z1 - 0.7, x0 + 2.0, x1 - 2.0, +1.0, {});
     }
   }
 
@@ -274,8 +274,8 @@ class Builder {
 
   // A brick wall (class wall) along z with facade at x = x_face (street at
   // smaller x), from z0 to z1, with a door opening at [door_z0, door_z0 + door_w].
-  // Returns the door's SceneObject index after adding it with `angle`-driven
-  // revolute motion (negative angles open towards the street).
+  // The door turns about its vertical hinge (at door_z0) from closed to
+  // `angle1` between t0 and t1 (negative angles open towards the street).
   void DoorWall(double x_face, double z0, double z1, double door_z0, double angle1, double t0,
                 double t1) {
     Material brick;
@@ -300,10 +300,10 @@ class Builder {
     Quad back;
     back.origin = Eigen::Vector3d(x_face + 1.5, G - floor, door_z0);
     back.axis_u = Eigen::Vector3d::UnitZ();
-    back.axis_v = -Eigen::Vector3d::UnitY();  // normal = z × (-y) = +x ... flipped below
+    back.axis_v = -Eigen::Vector3d::UnitY();
     back.size_u = door_w;
     back.size_v = door_h;
-    // Visible from the street side (normal -x): swap the axes.
+    // Visible from the street side: normal (-y) × z = -x.
     std::swap(back.axis_u, back.axis_v);
     std::swap(back.size_u, back.size_v);
     back.material = interior;
@@ -390,13 +390,18 @@ class Builder {
 
   // Trees and lamp poles on a line at `line` (x if along_z else z) from a0 to
   // a1; `street` (±1) points towards the street.
-  void Furniture(bool along_z, double line, double a0, double a1, double street) {
+  void Furniture(bool along_z, double line, double a0, double a1, double street,
+                 const std::vector<Interval>& skip) {
     static const std::vector<Color> kLeaves = {Color(0.2f, 0.36f, 0.12f), Color(0.28f, 0.42f, 0.16f),
                                                Color(0.16f, 0.3f, 0.14f)};
     const int bark = AddMat(Pattern::kBark, Color(0.3f, 0.22f, 0.16f), Color(0.2f, 0.15f, 0.1f));
     const int metal = AddMat(Pattern::kMetal, Color(0.42f, 0.44f, 0.46f), Color(0.3f, 0.3f, 0.3f));
     double a = a0 + rng_.Uniform(0.0, 8.0);
     while (a < a1) {
+      if (Overlaps(skip, a - 2.0, a + 2.0)) {
+        a += 2.0;
+        continue;
+      }
       auto box = [&](double along0, double along1, double h0, double h1, double across0, double across1,
                      std::array<int, 6> m, uint16_t id) {
         if (along_z) {
@@ -428,7 +433,6 @@ class Builder {
     }
   }
 
-  Scenario* sc_;
   Scene* scene_;
   Rng rng_;
   int road_material_ = 0, curb_material_ = 0, roof_material_ = 0;
@@ -450,17 +454,26 @@ void StraightStreet(Builder* b, double z0, double z1, std::vector<Interval> no_b
 }
 
 // Pedestrians walking along the sidewalks between z0 and z1.
-void Walkers(Builder* b, int count, double z0, double z1, double t_total) {
+void Walkers(Builder* b, int count, double z0, double z1) {
   for (int i = 0; i < count; ++i) {
     const bool right = b->rng().Chance(0.5);
     const bool forward = b->rng().Chance(0.5);
     const double x = right ? (forward ? 5.4 : 6.3) : (forward ? -9.0 : -9.9);
     const double speed = b->rng().Uniform(1.0, 1.6);
     const double z = b->rng().Uniform(z0, z1);
-    (void)t_total;
     PlanarState s{x, z, forward ? 0.0 : M_PI, speed};
     b->AddPedestrian(PlanarMotion(s, {}, G - kCurbHeight));
   }
+}
+
+// Walks `distance` metres from (x, z) along `yaw` at `speed`, then stops
+// within 0.5 s.
+PlanarMotion WalkAndStop(double x, double z, double yaw, double speed, double distance, double y) {
+  const double stop_time = 0.5;
+  const double stop_distance = 0.5 * speed * stop_time;
+  return PlanarMotion(PlanarState{x, z, yaw, speed},
+                      {{(distance - stop_distance) / speed, 0.0, 0.0}, {stop_time, -speed / stop_time, 0.0}},
+                      y);
 }
 
 // Distance the camera travels in the sequence (to size the street).
@@ -482,7 +495,7 @@ void BuildDriving(Scenario* sc, Builder* b) {
   // Leading cars in the camera's lane.
   b->AddCar(PlanarMotion(PlanarState{0.0, 18.0, 0.0, 10.0},
                          {{3.0, 0.5, 0.0}, {3.0, -0.8, 0.0}, {4.0, 0.0, 0.0}, {4.0, 0.3, 0.0}}, G));
-  b->AddCar(PlanarMotion(PlanarState{0.1, 48.0, 0.0, 11.0}, {{5.0, 0.0, 0.0}, {5.0, -0.4, 0.0}}, G));
+  b->AddCar(PlanarMotion(PlanarState{0.1, 48.0, 0.0, 11.0}, {{5.0, 0.0, 0.0}, {5.0, -0.1, 0.0}}, G));
   // Oncoming traffic, spaced along the street.
   double z = 45.0;
   while (z < 10.0 * t_end + 150.0 && z < z1) {
@@ -494,18 +507,19 @@ void BuildDriving(Scenario* sc, Builder* b) {
   }
   b->ParkedRow(kParkRight, -30.0, z1 - 20.0, 0.0, 0.3, {});
   b->ParkedRow(kParkLeft, -30.0, z1 - 20.0, M_PI, 0.35, {});
-  Walkers(b, 8, 0.0, std::min(z1 - 30.0, 10.0 * t_end + 60.0), t_end);
+  Walkers(b, 8, 0.0, std::min(z1 - 30.0, 10.0 * t_end + 60.0));
 }
 
 void BuildIntersection(Scenario* sc, Builder* b) {
   const double zi = 45.0;
   const double turn_radius = 8.0;
   const double z_turn = zi - 1.75 - turn_radius;  // the turn ends in the cross street's right lane
-  // 8 -> 5 m/s over 13 m, then 5 m/s to the turn, quarter circle, accelerate.
+  // 8 -> 5 m/s over 13 m, then 5 m/s to the turn, quarter circle, accelerate
+  // to 9 m/s, the speed of the crossing cars it then follows.
   const double straight = z_turn - 13.0;
   sc->camera_motion = CameraMotion(
       8.0, {{2.0, -1.5, 0.0}, {straight / 5.0, 0.0, 0.0},
-            {M_PI / 2.0 * turn_radius / 5.0, 0.0, 1.0 / turn_radius}, {4.0, 1.5, 0.0}});
+            {M_PI / 2.0 * turn_radius / 5.0, 0.0, 1.0 / turn_radius}, {4.0, 1.0, 0.0}});
   const double t_end = sc->TimeOf(sc->num_frames);
   const PlanarState end = sc->camera_motion.StateAt(t_end);
   const double x_far = std::max(120.0, end.x + 150.0);
@@ -530,7 +544,7 @@ void BuildIntersection(Scenario* sc, Builder* b) {
   // Crossing cars: one will lead the camera after its turn, one the other way.
   b->AddCar(PlanarMotion(PlanarState{-36.0, zi - 1.75, M_PI / 2.0, 9.0}, {}, G));
   b->AddCar(PlanarMotion(PlanarState{44.0, zi + 1.75, -M_PI / 2.0, 8.0}, {}, G));
-  b->AddCar(PlanarMotion(PlanarState{-70.0, zi - 1.6, M_PI / 2.0, 10.0}, {}, G));
+  b->AddCar(PlanarMotion(PlanarState{-60.0, zi - 1.6, M_PI / 2.0, 9.0}, {}, G));
   // Oncoming car on the main street.
   b->AddCar(PlanarMotion(PlanarState{kOncomingLane, 70.0, M_PI, 9.0}, {}, G));
   const std::vector<Interval> keep_clear = {{south - 14.0, north + 10.0}};
@@ -542,7 +556,7 @@ void BuildIntersection(Scenario* sc, Builder* b) {
     b->AddCar(PlanarMotion(PlanarState{x, south + 1.15, M_PI / 2.0, 0.0}, {}, G));
   }
   // Pedestrians on the corners.
-  Walkers(b, 4, 0.0, south - 5.0, t_end);
+  Walkers(b, 4, 0.0, south - 5.0);
   b->AddPedestrian(PlanarMotion(PlanarState{9.0, north + 1.5, M_PI / 2.0, 1.2}, {}, G - kCurbHeight));
   b->AddPedestrian(PlanarMotion(PlanarState{20.0, south - 1.2, -M_PI / 2.0, 1.3}, {}, G - kCurbHeight));
 }
@@ -568,13 +582,14 @@ void BuildStationaryThenAccelerating(Scenario* sc, Builder* b) {
               i == 2);
     start -= b->rng().Uniform(14.0, 24.0);
   }
-  // Pedestrians crossing in front of the waiting camera, on the road.
-  b->AddPedestrian(PlanarMotion(PlanarState{3.2, 9.6, -M_PI / 2.0, 1.5}, {}, G));
-  b->AddPedestrian(PlanarMotion(PlanarState{4.6, 8.6, -M_PI / 2.0, 1.4}, {}, G));
+  // Pedestrians crossing the camera's lane in front of it, on the road; they
+  // stop on the lane divider (clear of both the camera and the left lane).
+  b->AddPedestrian(WalkAndStop(3.4, 9.6, -M_PI / 2.0, 1.5, 5.0, G));
+  b->AddPedestrian(WalkAndStop(4.4, 8.4, -M_PI / 2.0, 1.3, 5.8, G));
   b->ParkedRow(kParkRight, -30.0, 5.0, 0.0, 0.1, {});
   b->ParkedRow(kParkRight, 14.0, z1 - 20.0, 0.0, 0.25, {});
   b->ParkedRow(kParkLeft, 14.0, z1 - 20.0, 0.0, 0.3, {});
-  Walkers(b, 5, -5.0, 60.0, t_end);
+  Walkers(b, 5, -5.0, 60.0);
 }
 
 void BuildFollowBraking(Scenario* sc, Builder* b) {
@@ -591,7 +606,7 @@ void BuildFollowBraking(Scenario* sc, Builder* b) {
   b->AddCar(PlanarMotion(PlanarState{kOncomingLane, 150.0, M_PI, 11.0}, {}, G));
   b->ParkedRow(kParkRight, -30.0, z1 - 20.0, 0.0, 0.03, {});
   b->ParkedRow(kParkLeft, -30.0, z1 - 20.0, M_PI, 0.03, {});
-  Walkers(b, 4, 0.0, 80.0, t_end);
+  Walkers(b, 4, 0.0, 80.0);
 }
 
 void BuildDoor(Scenario* sc, Builder* b) {

@@ -56,10 +56,12 @@ Color Asphalt(const Material& m, const SurfaceSample& p, const std::vector<Marki
   const float x = static_cast<float>(p.p_in_world.x()), z = static_cast<float>(p.p_in_world.z());
   const float fw = std::max(p.fw_s, p.fw_t);
   const float patches = Fbm(x, z, 0.08f, 3, 0.5f, fw, m.seed);
-  const float grain = Fbm(x, z, 2.5f, 6, 0.62f, fw, m.seed + 100u);
+  const float grain = Fbm(x, z, 2.5f, 4, 0.62f, fw, m.seed + 100u);
+  // Gravel: strong fine grain (centimetre scale), faded out with distance.
+  const float gravel = procedural::FbmAniso(x, z, 5.0f, 6, 0.85f, p.fw_s, p.fw_t, m.seed + 150u);
   float spot_value = 0.0f;
   const float spot = Spots(x, z, 0.9f, 0.35f, 0.04f, 0.16f, fw, m.seed + 200u, &spot_value);
-  Color c = m.color * (1.0f + 0.10f * patches + 0.16f * grain);
+  Color c = m.color * (1.0f + 0.10f * patches + 0.12f * grain + 0.3f * gravel);
   c = Mix(c, m.color * (spot_value < 0.5f ? 0.55f : 1.35f), 0.8f * spot);
   for (const Marking& mk : markings) {
     const float rx = x - static_cast<float>(mk.start.x()), rz = z - static_cast<float>(mk.start.y());

@@ -8,11 +8,13 @@
 #include <fstream>
 #include <vector>
 
+#include <glog/logging.h>
 #include <opencv2/imgcodecs.hpp>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "slam/common/timer.h"
+#include "slam/joints/class_table.h"
 #include "slam/sim/labels.h"
 #include "slam/sim/procedural.h"
 
@@ -150,17 +152,38 @@ std::string CalibrationText(const geometry::StereoCamera& camera) {
 }
 
 std::string ClassTableText() {
-  return "# id name static|dynamic  (Cityscapes ids; door: revolute on wall)\n"
-         "7 road static\n"
-         "8 sidewalk static\n"
-         "11 building static\n"
-         "12 wall static\n"
-         "17 pole static\n"
-         "21 vegetation static\n"
-         "23 sky static\n"
-         "24 person dynamic\n"
-         "26 car dynamic\n"
-         "40 door dynamic\n";
+  using joints::ClassInfo;
+  using joints::JointType;
+  std::vector<ClassInfo> classes;
+  auto add = [&](int id, const char* name, bool plane) {
+    ClassInfo c;
+    c.id = id;
+    c.name = name;
+    c.fit_plane = plane;
+    classes.push_back(c);
+  };
+  auto add_dynamic = [&](int id, const char* name, int parent, JointType joint) {
+    ClassInfo c;
+    c.id = id;
+    c.name = name;
+    c.is_dynamic = true;
+    c.parent_id = parent;
+    c.joint = joint;
+    classes.push_back(c);
+  };
+  add(kClassRoad, "road", true);
+  add(kClassSidewalk, "sidewalk", true);
+  add(kClassBuilding, "building", true);
+  add(kClassWall, "wall", true);
+  add(kClassPole, "pole", false);
+  add(kClassVegetation, "vegetation", false);
+  add(kClassSky, "sky", false);
+  add_dynamic(kClassPerson, "person", kClassRoad, JointType::kPlanar);
+  add_dynamic(kClassCar, "car", kClassRoad, JointType::kPlanar);
+  add_dynamic(kClassDoor, "door", kClassWall, JointType::kRevolute);
+  absl::StatusOr<joints::ClassTable> table = joints::ClassTable::Create(std::move(classes));
+  CHECK(table.ok()) << table.status();
+  return table->ToText();
 }
 
 absl::Status WriteSequence(const Scenario& scenario, const std::string& out_dir,

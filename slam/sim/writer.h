@@ -51,7 +51,8 @@ absl::Status WriteSequence(const Scenario& scenario, const std::string& out_dir,
 // the left camera and label locations need no offset).
 std::string CalibrationText(const geometry::StereoCamera& camera);
 
-// The class table of the generated data.
+// The class table of the generated data (docs/config.md format, written
+// by joints::ClassTable::ToText).
 std::string ClassTableText();
 
 // Per-eye exposure of frame `frame` (deterministic in the scenario seed):
