@@ -63,6 +63,11 @@ int EvalCommand(int argc, char** argv) {
       io::EvaluateRunDirectory(**sequence, args->Get("est"), options);
   if (!eval.ok()) return Fail("eval", std::string(eval.status().message()));
 
+  if (!eval->camera && !eval->objects) {
+    return Fail("eval", "nothing to evaluate: sequence " + (*sequence)->sequence() +
+                            " has no ground truth (" + eval->camera_note + "; " +
+                            eval->objects_note + ")");
+  }
   std::cout << io::FormatRunEvaluation(*eval) << std::flush;
   if (args->Has("json")) {
     std::string error;

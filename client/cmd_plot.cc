@@ -19,6 +19,7 @@
 
 #include "client/cli_util.h"
 #include "client/commands.h"
+#include "slam/io/evaluation.h"
 #include "slam/io/file_util.h"
 #include "slam/io/ply.h"
 #include "slam/io/sequence.h"
@@ -518,6 +519,11 @@ int PlotCommand(int argc, char** argv) {
     if (!seq.ok()) return Fail("plot", std::string(seq.status().message()));
     in.gt_camera = (*seq)->gt_world_from_camera();
     in.gt_objects = (*seq)->gt_objects();
+    if (!(*seq)->has_gt_objects() && (*seq)->has_labels() && (*seq)->has_gt_poses() &&
+        (*seq)->tracking_calib()) {
+      in.gt_objects = io::ObjectsGtFromLabels((*seq)->labels(), (*seq)->gt_world_from_camera(),
+                                              (*seq)->tracking_calib()->left_from_ref_translation);
+    }
     in.stamps_ns = (*seq)->timestamps_ns();
     title += "  vs  " + args->Get("format") + " " + (*seq)->sequence();
   }
