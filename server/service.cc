@@ -82,6 +82,9 @@ bool RunWorker(Session* session,
     pb::StageTiming* queued = update->add_timings();
     queued->set_stage("queue");
     queued->set_ms(queue_ms);
+    pb::StageTiming* engine = update->add_timings();
+    engine->set_stage("engine");
+    engine->set_ms(engine_ms);
     update->set_queue_depth(queue->size());
     if (metrics) metrics->FrameProcessed(engine_ms, item->decode_ms + queue_ms + engine_ms);
     session->RememberUpdate(*update);
