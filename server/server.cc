@@ -91,7 +91,7 @@ absl::StatusOr<std::unique_ptr<TwistServer>> TwistServer::Start(const ServerOpti
     TwistServer* raw = s.get();
     absl::StatusOr<int> port = s->metrics_http_.Start(options.metrics_listen, [raw] { return raw->MetricsText(); });
     if (!port.ok()) {
-      s->server_->Shutdown(std::chrono::system_clock::now());
+      s->Shutdown();
       return port.status();
     }
     s->metrics_port_ = *port;
@@ -106,7 +106,7 @@ TwistServer::~TwistServer() { Shutdown(); }
 void TwistServer::Shutdown() {
   {
     absl::MutexLock lock(&shutdown_mu_);
-    if (shut_down_) return;
+    if (shut_down_ || server_ == nullptr) return;  // nothing started (Start failed)
     shut_down_ = true;
   }
   LOG(INFO) << "shutting down: not serving, draining streams";

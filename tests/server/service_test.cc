@@ -570,3 +570,43 @@ TEST(Service, MapChunksMetricsAndUnrectifiedRig) {
 
 }  // namespace
 }  // namespace twist::server
+
+namespace twist::server {
+namespace {
+
+TEST(Service, TlsServesOnlyTlsClients) {
+  const std::string dir = std::string(TWIST_SOURCE_DIR) + "/tests/server/testdata";
+  ServerOptions options = TestOptions();
+  options.tls_cert_file = dir + "/server.crt";
+  options.tls_key_file = dir + "/server.key";
+  auto server = StartServer(options);
+  ASSERT_NE(server, nullptr);
+  client::ClientOptions o;
+  o.address = server->address();
+  o.tls_ca_file = dir + "/server.crt";
+  o.tls_server_name = "localhost";
+  auto tls_client = std::move(*client::SlamClient::Connect(o));
+  auto info = tls_client->GetServerInfo();
+  ASSERT_TRUE(info.ok()) << info.status();
+  EXPECT_THAT(std::vector<std::string>(info->capabilities().begin(), info->capabilities().end()),
+              ::testing::Contains("tls"));
+  auto created = tls_client->CreateSession(MakeCreateRequest(kW, kH));
+  ASSERT_TRUE(created.ok());
+  Collector c;
+  ASSERT_TRUE(tls_client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
+  ASSERT_TRUE(tls_client->Send(MakeTestFrame(0, kW, kH)).ok());
+  ASSERT_TRUE(tls_client->CloseStream().ok());
+  EXPECT_EQ(c.updates.size(), 1u);
+
+  client::ClientOptions plain;
+  plain.address = server->address();
+  plain.rpc_timeout_s = 2;
+  auto plain_client = std::move(*client::SlamClient::Connect(plain));
+  EXPECT_FALSE(plain_client->GetServerInfo().ok());
+
+  options.tls_key_file = dir + "/missing.key";
+  EXPECT_TRUE(absl::IsNotFound(TwistServer::Start(options, FakeFactory()).status()));
+}
+
+}  // namespace
+}  // namespace twist::server
