@@ -229,7 +229,8 @@ bool MakeDirs(const std::string& dir, std::string* error) {
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (ec || !std::filesystem::is_directory(dir)) {
-    if (error) *error = "cannot create directory " + dir + ": " + (ec ? ec.message() : "not a directory");
+    if (error)
+      *error = "cannot create directory " + dir + ": " + (ec ? ec.message() : "not a directory");
     return false;
   }
   return true;

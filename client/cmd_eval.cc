@@ -18,17 +18,24 @@ int EvalCommand(int argc, char** argv) {
   parser.AddValue("dataset", "DIR", "dataset root (DESIGN.md §5 layouts)")
       .AddValue("format", "FORMAT", "kitti-odometry or kitti-tracking")
       .AddValue("seq", "SEQ", "sequence name, e.g. 06 or 0001")
-      .AddValue("est", "OUTDIR", "output directory of `twistslam run` (camera.txt, objects.txt)",
+      .AddValue("est",
+                "OUTDIR",
+                "output directory of `twistslam run` (camera.txt, objects.txt)",
                 /*required=*/false)
       .AddValue("json", "FILE", "also write the metrics as JSON to FILE", /*required=*/false)
-      .AddValue("moving-speed", "M_PER_S",
+      .AddValue("moving-speed",
+                "M_PER_S",
                 "objects whose mean ground-truth speed exceeds this are 'moving'",
-                /*required=*/false, "0.5")
-      .AddValue("min-mask-pixels", "N",
+                /*required=*/false,
+                "0.5")
+      .AddValue("min-mask-pixels",
+                "N",
                 "visible-coverage counts frames where the object shows >= N mask pixels",
-                /*required=*/false, "200")
+                /*required=*/false,
+                "200")
       .AddFlag("no-mask-pixels", "skip reading the masks (no visible-coverage figure)")
-      .AddValue("write-gt-run", "DIR",
+      .AddValue("write-gt-run",
+                "DIR",
                 "instead of evaluating, write the sequence's ground truth as run outputs into "
                 "DIR (evaluating DIR then gives zeros)",
                 /*required=*/false);
@@ -64,9 +71,9 @@ int EvalCommand(int argc, char** argv) {
   if (!eval.ok()) return Fail("eval", std::string(eval.status().message()));
 
   if (!eval->camera && !eval->objects) {
-    return Fail("eval", "nothing to evaluate: sequence " + (*sequence)->sequence() +
-                            " has no ground truth (" + eval->camera_note + "; " +
-                            eval->objects_note + ")");
+    return Fail("eval",
+                "nothing to evaluate: sequence " + (*sequence)->sequence() +
+                    " has no ground truth (" + eval->camera_note + "; " + eval->objects_note + ")");
   }
   std::cout << io::FormatRunEvaluation(*eval) << std::flush;
   if (args->Has("json")) {

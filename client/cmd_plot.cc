@@ -9,13 +9,12 @@
 #include <cmath>
 #include <iostream>
 #include <map>
-#include <set>
-#include <string>
-#include <vector>
-
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <set>
+#include <string>
+#include <vector>
 
 #include "client/cli_util.h"
 #include "client/commands.h"
@@ -34,8 +33,8 @@ const cv::Scalar kWhite(255, 255, 255);
 const cv::Scalar kBlack(0, 0, 0);
 const cv::Scalar kGrid(228, 228, 228);
 const cv::Scalar kAxis(90, 90, 90);
-const cv::Scalar kEstCamera(200, 90, 20);   // blue (BGR)
-const cv::Scalar kGtCamera(40, 160, 40);    // green
+const cv::Scalar kEstCamera(200, 90, 20);  // blue (BGR)
+const cv::Scalar kGtCamera(40, 160, 40);   // green
 const cv::Scalar kPoints(150, 150, 150);
 constexpr int kFont = cv::FONT_HERSHEY_SIMPLEX;
 
@@ -72,8 +71,14 @@ class Axes {
  public:
   // `right_margin` leaves room for a legend; `negate_y_ticks` labels the
   // vertical axis with −y (used when the vertical axis shows x growing down).
-  Axes(cv::Size size, double x0, double x1, double y0, double y1, bool equal_aspect,
-       int right_margin = 30, bool negate_y_ticks = false)
+  Axes(cv::Size size,
+       double x0,
+       double x1,
+       double y0,
+       double y1,
+       bool equal_aspect,
+       int right_margin = 30,
+       bool negate_y_ticks = false)
       : size_(size), negate_y_ticks_(negate_y_ticks) {
     area_ = cv::Rect(80, 50, size.width - 80 - right_margin, size.height - 50 - 60);
     if (!(x1 > x0)) {
@@ -108,7 +113,9 @@ class Axes {
   }
   bool Inside(double x, double y) const { return x >= x0_ && x <= x1_ && y >= y0_ && y <= y1_; }
 
-  void DrawFrame(cv::Mat* img, const std::string& title, const std::string& xlabel,
+  void DrawFrame(cv::Mat* img,
+                 const std::string& title,
+                 const std::string& xlabel,
                  const std::string& ylabel) const {
     const double xs = NiceStep(x1_ - x0_, 8);
     const double ys = NiceStep(y1_ - y0_, 6);
@@ -118,7 +125,13 @@ class Axes {
       const std::string t = TickText(x, xs);
       int base = 0;
       const cv::Size ts = cv::getTextSize(t, kFont, 0.45, 1, &base);
-      cv::putText(*img, t, {u - ts.width / 2, area_.y + area_.height + 18}, kFont, 0.45, kAxis, 1,
+      cv::putText(*img,
+                  t,
+                  {u - ts.width / 2, area_.y + area_.height + 18},
+                  kFont,
+                  0.45,
+                  kAxis,
+                  1,
                   cv::LINE_AA);
     }
     for (double y = std::ceil(y0_ / ys) * ys; y <= y1_ + 1e-9; y += ys) {
@@ -127,17 +140,23 @@ class Axes {
       const std::string t = TickText(negate_y_ticks_ ? -y : y, ys);
       int base = 0;
       const cv::Size ts = cv::getTextSize(t, kFont, 0.45, 1, &base);
-      cv::putText(*img, t, {area_.x - ts.width - 6, v + ts.height / 2}, kFont, 0.45, kAxis, 1,
-                  cv::LINE_AA);
+      cv::putText(
+          *img, t, {area_.x - ts.width - 6, v + ts.height / 2}, kFont, 0.45, kAxis, 1, cv::LINE_AA);
     }
     cv::rectangle(*img, area_, kAxis, 1);
     int base = 0;
     const cv::Size tt = cv::getTextSize(title, kFont, 0.65, 2, &base);
-    cv::putText(*img, title, {(size_.width - tt.width) / 2, 30}, kFont, 0.65, kBlack, 2,
-                cv::LINE_AA);
+    cv::putText(
+        *img, title, {(size_.width - tt.width) / 2, 30}, kFont, 0.65, kBlack, 2, cv::LINE_AA);
     const cv::Size xl = cv::getTextSize(xlabel, kFont, 0.5, 1, &base);
-    cv::putText(*img, xlabel, {area_.x + (area_.width - xl.width) / 2, size_.height - 15}, kFont,
-                0.5, kBlack, 1, cv::LINE_AA);
+    cv::putText(*img,
+                xlabel,
+                {area_.x + (area_.width - xl.width) / 2, size_.height - 15},
+                kFont,
+                0.5,
+                kBlack,
+                1,
+                cv::LINE_AA);
     // Vertical y label: draw horizontally on a strip and rotate it.
     const cv::Size yl = cv::getTextSize(ylabel, kFont, 0.5, 1, &base);
     cv::Mat strip(yl.height + base + 6, yl.width + 6, CV_8UC3, kWhite);
@@ -151,7 +170,10 @@ class Axes {
   }
 
   // Polyline in data coordinates (sub-pixel, anti-aliased), optionally dashed.
-  void DrawPolyline(cv::Mat* img, const Polyline& pts, const cv::Scalar& colour, int thickness,
+  void DrawPolyline(cv::Mat* img,
+                    const Polyline& pts,
+                    const cv::Scalar& colour,
+                    int thickness,
                     bool dashed = false) const {
     cv::Mat roi = (*img)(area_);
     const cv::Point offset(area_.x * 16, area_.y * 16);
@@ -171,8 +193,8 @@ class Axes {
     if (!Inside(x, y)) return;
     cv::circle(*img, ToPixel(x, y), radius * 16, colour, cv::FILLED, cv::LINE_AA, 4);
   }
-  void DrawLabel(cv::Mat* img, double x, double y, const std::string& text,
-                 const cv::Scalar& colour) const {
+  void DrawLabel(
+      cv::Mat* img, double x, double y, const std::string& text, const cv::Scalar& colour) const {
     if (!Inside(x, y)) return;
     const cv::Point p = ToPixel(x, y);
     const cv::Point at(Pix(p.x) + 5, Pix(p.y) - 5);
@@ -203,8 +225,8 @@ void DrawLegend(cv::Mat* img, const cv::Rect& area, const std::vector<LegendEntr
     width = std::max(width, cv::getTextSize(e.text, kFont, 0.45, 1, &base).width);
   }
   const int row = 18;
-  const cv::Rect box(area.x + area.width + 12, area.y, width + 50,
-                     static_cast<int>(entries.size()) * row + 8);
+  const cv::Rect box(
+      area.x + area.width + 12, area.y, width + 50, static_cast<int>(entries.size()) * row + 8);
   cv::Mat roi = (*img)(box & cv::Rect(0, 0, img->cols, img->rows));
   cv::Mat white(roi.size(), roi.type(), kWhite);
   cv::addWeighted(roi, 0.15, white, 0.85, 0.0, roi);
@@ -245,7 +267,9 @@ struct Inputs {
 };
 
 // Key that gives matched estimate/ground truth the same colour.
-int64_t ColourKey(const io::ObjectTrackRow& r) { return r.instance_id >= 0 ? r.instance_id : r.track_id; }
+int64_t ColourKey(const io::ObjectTrackRow& r) {
+  return r.instance_id >= 0 ? r.instance_id : r.track_id;
+}
 
 cv::Mat DrawTopView(const Inputs& in, const std::string& title) {
   // Bounds from trajectories (points may extend far; they do not widen the view
@@ -300,7 +324,9 @@ cv::Mat DrawTopView(const Inputs& in, const std::string& title) {
       }
     }
     legend.push_back({"map points (" + std::to_string(drawn) + ", " + in.points_file + ")",
-                      kPoints, false, true});
+                      kPoints,
+                      false,
+                      true});
   }
   // Ground-truth objects: thin dashed in their id colour.
   std::map<int64_t, Polyline> gt_tracks;
@@ -381,7 +407,8 @@ cv::Mat DrawSpeeds(const Inputs& in, const std::string& title, int max_objects) 
   }
   // Ground-truth speeds by finite differences over consecutive frames.
   std::map<int64_t, std::map<int64_t, Eigen::Vector3d>> gt_pos;
-  for (const auto& r : in.gt_objects) gt_pos[r.track_id][r.frame] = r.world_from_object.translation();
+  for (const auto& r : in.gt_objects)
+    gt_pos[r.track_id][r.frame] = r.world_from_object.translation();
   std::map<int64_t, Polyline> gt;
   for (const auto& [id, frames] : gt_pos) {
     for (const auto& [f, p] : frames) {
@@ -438,18 +465,25 @@ cv::Mat DrawSpeeds(const Inputs& in, const std::string& title, int max_objects) 
     axes.DrawPolyline(&img, est[id], c, 2);
     const cv::Point2d end = est[id].back();
     axes.DrawLabel(&img, end.x, end.y, "#" + std::to_string(id), c);
-    legend.push_back({"track #" + std::to_string(id) + " (instance " + std::to_string(key[id]) + ")",
-                      c});
+    legend.push_back(
+        {"track #" + std::to_string(id) + " (instance " + std::to_string(key[id]) + ")", c});
   }
   for (int64_t id : gt_shown) {
     if (shown_keys.count(id)) continue;
-    legend.push_back({"instance " + std::to_string(id) + " (ground truth only)", ColourForId(id), true});
+    legend.push_back(
+        {"instance " + std::to_string(id) + " (ground truth only)", ColourForId(id), true});
   }
   if (!est_shown.empty()) legend.push_back({"solid: estimate", cv::Scalar(60, 60, 60)});
   if (!gt_shown.empty()) legend.push_back({"dashed: ground truth", cv::Scalar(60, 60, 60), true});
   if (est_shown.empty() && gt_shown.empty()) {
-    cv::putText(img, "no moving object", {axes.area().x + 20, axes.area().y + 40}, kFont, 0.7,
-                kAxis, 1, cv::LINE_AA);
+    cv::putText(img,
+                "no moving object",
+                {axes.area().x + 20, axes.area().y + 40},
+                kFont,
+                0.7,
+                kAxis,
+                1,
+                cv::LINE_AA);
   }
   DrawLegend(&img, axes.area(), legend);
   return img;
@@ -521,7 +555,8 @@ int PlotCommand(int argc, char** argv) {
     in.gt_objects = (*seq)->gt_objects();
     if (!(*seq)->has_gt_objects() && (*seq)->has_labels() && (*seq)->has_gt_poses() &&
         (*seq)->tracking_calib()) {
-      in.gt_objects = io::ObjectsGtFromLabels((*seq)->labels(), (*seq)->gt_world_from_camera(),
+      in.gt_objects = io::ObjectsGtFromLabels((*seq)->labels(),
+                                              (*seq)->gt_world_from_camera(),
                                               (*seq)->tracking_calib()->left_from_ref_translation);
     }
     in.stamps_ns = (*seq)->timestamps_ns();
@@ -532,8 +567,10 @@ int PlotCommand(int argc, char** argv) {
   if (!MakeDirs(out_dir, &error)) return Fail("plot", error);
   const std::string top_path = io::JoinPath(out_dir, "topview.png");
   const std::string speed_path = io::JoinPath(out_dir, "speeds.png");
-  if (!WritePng(top_path, DrawTopView(in, "Top view: " + title), &error)) return Fail("plot", error);
-  if (!WritePng(speed_path, DrawSpeeds(in, "Object speeds: " + title, static_cast<int>(*max_objects)),
+  if (!WritePng(top_path, DrawTopView(in, "Top view: " + title), &error))
+    return Fail("plot", error);
+  if (!WritePng(speed_path,
+                DrawSpeeds(in, "Object speeds: " + title, static_cast<int>(*max_objects)),
                 &error)) {
     return Fail("plot", error);
   }

@@ -49,8 +49,7 @@ absl::StatusOr<RunEvaluation> EvaluateRunDirectory(const SequenceReader& sequenc
                                         " poses for a sequence of " +
                                         std::to_string(sequence.size()) + " frames");
     }
-    absl::StatusOr<CameraMetrics> camera =
-        EvaluateCamera(sequence.gt_world_from_camera(), *est);
+    absl::StatusOr<CameraMetrics> camera = EvaluateCamera(sequence.gt_world_from_camera(), *est);
     if (!camera.ok()) return camera.status();
     eval.camera = *camera;
   } else {
@@ -62,7 +61,8 @@ absl::StatusOr<RunEvaluation> EvaluateRunDirectory(const SequenceReader& sequenc
     gt_objects = sequence.gt_objects();
     eval.objects_gt_source = "objects_gt";
   } else if (sequence.has_labels() && sequence.has_gt_poses() && sequence.tracking_calib()) {
-    gt_objects = ObjectsGtFromLabels(sequence.labels(), sequence.gt_world_from_camera(),
+    gt_objects = ObjectsGtFromLabels(sequence.labels(),
+                                     sequence.gt_world_from_camera(),
                                      sequence.tracking_calib()->left_from_ref_translation);
     eval.objects_gt_source = "label_02 + poses";
   }
@@ -86,13 +86,16 @@ absl::StatusOr<RunEvaluation> EvaluateRunDirectory(const SequenceReader& sequenc
         CountMaskPixels(i, *mask, &counts);
       }
     }
-    absl::StatusOr<ObjectEvaluation> objects =
-        EvaluateObjects(gt_objects, *est, sequence.timestamps_ns(), options.objects,
-                        use_counts ? &counts : nullptr);
+    absl::StatusOr<ObjectEvaluation> objects = EvaluateObjects(gt_objects,
+                                                               *est,
+                                                               sequence.timestamps_ns(),
+                                                               options.objects,
+                                                               use_counts ? &counts : nullptr);
     if (!objects.ok()) return objects.status();
     eval.objects = *objects;
   } else {
-    eval.objects_note = "the sequence has no object ground truth (objects_gt, or label_02 with poses)";
+    eval.objects_note =
+        "the sequence has no object ground truth (objects_gt, or label_02 with poses)";
   }
   return eval;
 }
@@ -107,7 +110,8 @@ absl::Status WriteGroundTruthAsRun(const SequenceReader& sequence, const std::st
   if (ec || !DirExists(dir)) return absl::FailedPreconditionError("cannot create directory " + dir);
   std::vector<ObjectGtRow> gt = sequence.gt_objects();
   if (!sequence.has_gt_objects() && sequence.has_labels() && sequence.tracking_calib()) {
-    gt = ObjectsGtFromLabels(sequence.labels(), sequence.gt_world_from_camera(),
+    gt = ObjectsGtFromLabels(sequence.labels(),
+                             sequence.gt_world_from_camera(),
                              sequence.tracking_calib()->left_from_ref_translation);
   }
   std::map<std::pair<int64_t, int64_t>, const ObjectGtRow*> by_key;

@@ -29,11 +29,11 @@ struct RunEvaluation {
   std::string sequence;
   std::string est_dir;
   int64_t num_frames = 0;
-  std::optional<CameraMetrics> camera;    // absent without ground-truth poses
-  std::string camera_note;                // why camera metrics are absent
+  std::optional<CameraMetrics> camera;      // absent without ground-truth poses
+  std::string camera_note;                  // why camera metrics are absent
   std::optional<ObjectEvaluation> objects;  // absent without object ground truth
   std::string objects_note;
-  std::string objects_gt_source;          // "objects_gt" or "label_02 + poses"
+  std::string objects_gt_source;  // "objects_gt" or "label_02 + poses"
 };
 
 // Ground-truth object poses from KITTI labels and ground-truth camera poses:

@@ -26,8 +26,8 @@ absl::StatusOr<std::string> ReadTextFile(const std::string& path) {
   }
   std::ifstream in(path, std::ios::binary);
   if (!in) {
-    return absl::FailedPreconditionError(path + ": cannot open for reading: " +
-                                         std::strerror(errno));
+    return absl::FailedPreconditionError(path +
+                                         ": cannot open for reading: " + std::strerror(errno));
   }
   std::ostringstream buffer;
   buffer << in.rdbuf();
@@ -111,14 +111,16 @@ absl::Status ParseNumberLine(const std::string& path,
                              std::vector<double>* values) {
   const std::vector<std::string_view> fields = SplitFields(line.text);
   if (count >= 0 && static_cast<int>(fields.size()) != count) {
-    return LineError(path, line.number,
+    return LineError(path,
+                     line.number,
                      "expected " + std::to_string(count) + " numbers, found " +
                          std::to_string(fields.size()) + " fields");
   }
   values->resize(fields.size());
   for (size_t i = 0; i < fields.size(); ++i) {
     if (!ParseDouble(fields[i], &(*values)[i])) {
-      return LineError(path, line.number,
+      return LineError(path,
+                       line.number,
                        "field " + std::to_string(i + 1) + " '" + std::string(fields[i]) +
                            "' is not a finite number");
     }

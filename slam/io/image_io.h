@@ -1,9 +1,8 @@
 // Image loading with checks and clear errors (file named, problem stated).
 #pragma once
 
-#include <string>
-
 #include <opencv2/core.hpp>
+#include <string>
 
 #include "absl/status/statusor.h"
 

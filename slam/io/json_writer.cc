@@ -1,10 +1,10 @@
 #include "slam/io/json_writer.h"
 
+#include <glog/logging.h>
+
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
-
-#include <glog/logging.h>
 
 namespace twist::io {
 

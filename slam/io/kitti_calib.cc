@@ -1,9 +1,8 @@
 #include "slam/io/kitti_calib.h"
 
+#include <Eigen/LU>
 #include <cmath>
 #include <vector>
-
-#include <Eigen/LU>
 
 #include "slam/io/file_util.h"
 

@@ -12,11 +12,10 @@
 //   baseline = (P_left(0,3) - P_right(0,3)) / fx   (= -P1(0,3)/fx for P0/P1).
 #pragma once
 
+#include <Eigen/Core>
 #include <map>
 #include <optional>
 #include <string>
-
-#include <Eigen/Core>
 
 #include "absl/status/statusor.h"
 #include "slam/geometry/stereo_camera.h"
@@ -48,10 +47,10 @@ absl::StatusOr<KittiOdometryCalib> ReadKittiOdometryCalib(const std::string& pat
 struct KittiTrackingCalib {
   Matrix34d p2 = Matrix34d::Zero();
   Matrix34d p3 = Matrix34d::Zero();
-  std::optional<Eigen::Matrix3d> r_rect;      // R_rect / R0_rect
-  std::optional<Matrix34d> tr_velo_cam;       // Tr_velo_cam / Tr_velo_to_cam
-  std::optional<Matrix34d> tr_imu_velo;       // Tr_imu_velo / Tr_imu_to_velo
-  geometry::StereoCamera camera;              // left = camera 2, right = camera 3
+  std::optional<Eigen::Matrix3d> r_rect;  // R_rect / R0_rect
+  std::optional<Matrix34d> tr_velo_cam;   // Tr_velo_cam / Tr_velo_to_cam
+  std::optional<Matrix34d> tr_imu_velo;   // Tr_imu_velo / Tr_imu_to_velo
+  geometry::StereoCamera camera;          // left = camera 2, right = camera 3
   // KITTI labels are given in the rectified reference camera 0 frame; a point
   // there maps to the left (camera 2) frame by adding this translation:
   // p_in_left = p_in_ref + left_from_ref_translation = K⁻¹ P2(:,3).

@@ -38,7 +38,8 @@ absl::StatusOr<std::vector<KittiLabel>> ReadKittiLabels(const std::string& path)
   for (const TextLine& line : SplitLines(*text)) {
     const std::vector<std::string_view> f = SplitFields(line.text);
     if (f.size() != 17 && f.size() != 18) {
-      return LineError(path, line.number,
+      return LineError(path,
+                       line.number,
                        "expected 17 fields (frame track_id type truncated occluded alpha x1 y1 "
                        "x2 y2 h w l x y z rotation_y), found " +
                            std::to_string(f.size()));
@@ -49,22 +50,21 @@ absl::StatusOr<std::vector<KittiLabel>> ReadKittiLabels(const std::string& path)
       return LineError(path, line.number, "frame '" + std::string(f[0]) + "' is not an index");
     }
     if (!ParseInt64(f[1], &l.track_id)) {
-      return LineError(path, line.number,
-                       "track_id '" + std::string(f[1]) + "' is not an integer");
+      return LineError(path, line.number, "track_id '" + std::string(f[1]) + "' is not an integer");
     }
     l.type = std::string(f[2]);
     double d[13];
     for (int i = 0; i < 13; ++i) {
       const size_t idx = (i == 0) ? 3 : static_cast<size_t>(4 + i);  // skip 'occluded' (f[4])
       if (!ParseDouble(f[idx], &d[i])) {
-        return LineError(path, line.number,
-                         "field " + std::to_string(idx + 1) + " '" + std::string(f[idx]) +
-                             "' is not a number");
+        return LineError(
+            path,
+            line.number,
+            "field " + std::to_string(idx + 1) + " '" + std::string(f[idx]) + "' is not a number");
       }
     }
     if (!ParseInt64(f[4], &occluded)) {
-      return LineError(path, line.number,
-                       "occluded '" + std::string(f[4]) + "' is not an integer");
+      return LineError(path, line.number, "occluded '" + std::string(f[4]) + "' is not an integer");
     }
     l.truncated = d[0];
     l.occluded = static_cast<int>(occluded);

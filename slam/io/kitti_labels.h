@@ -7,12 +7,11 @@
 // values (-1000 / -10).
 #pragma once
 
+#include <Eigen/Core>
 #include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
-
-#include <Eigen/Core>
 
 #include "absl/status/statusor.h"
 #include "slam/geometry/se3.h"
@@ -22,15 +21,15 @@ namespace twist::io {
 struct KittiLabel {
   int64_t frame = 0;
   int64_t track_id = -1;
-  std::string type;       // Car, Van, Truck, Pedestrian, Person_sitting, Cyclist, Tram, Misc, DontCare
-  double truncated = 0;   // 0..1 (tracking: 0, 1, 2 levels)
-  int occluded = 0;       // 0 visible, 1 partly, 2 largely, 3 unknown
-  double alpha = 0;       // observation angle
-  double x1 = 0, y1 = 0, x2 = 0, y2 = 0;  // 2D box in the left colour image (px)
-  double height = 0, width = 0, length = 0;  // 3D box size (m)
+  std::string type;  // Car, Van, Truck, Pedestrian, Person_sitting, Cyclist, Tram, Misc, DontCare
+  double truncated = 0;                                // 0..1 (tracking: 0, 1, 2 levels)
+  int occluded = 0;                                    // 0 visible, 1 partly, 2 largely, 3 unknown
+  double alpha = 0;                                    // observation angle
+  double x1 = 0, y1 = 0, x2 = 0, y2 = 0;               // 2D box in the left colour image (px)
+  double height = 0, width = 0, length = 0;            // 3D box size (m)
   Eigen::Vector3d location = Eigen::Vector3d::Zero();  // bottom centre, reference camera (m)
   double rotation_y = 0;
-  double score = 0;       // optional 18th column (results files)
+  double score = 0;  // optional 18th column (results files)
 
   bool is_dont_care() const { return type == "DontCare"; }
   // ref_camera_from_object with the origin at the 3D box centre (object x

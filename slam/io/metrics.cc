@@ -1,14 +1,14 @@
 #include "slam/io/metrics.h"
 
+#include <glog/logging.h>
+
+#include <Eigen/SVD>
 #include <algorithm>
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
 #include <limits>
 #include <set>
-
-#include <Eigen/SVD>
-#include <glog/logging.h>
 
 #include "slam/io/json_writer.h"
 
@@ -59,9 +59,8 @@ geometry::SE3d AlignRigid(const std::vector<Eigen::Vector3d>& est,
   return geometry::SE3d(r, mu_g - r * mu_e);
 }
 
-absl::StatusOr<CameraMetrics> EvaluateCamera(
-    const std::vector<geometry::SE3d>& gt,
-    const std::vector<geometry::SE3d>& est) {
+absl::StatusOr<CameraMetrics> EvaluateCamera(const std::vector<geometry::SE3d>& gt,
+                                             const std::vector<geometry::SE3d>& est) {
   if (gt.empty()) return absl::InvalidArgumentError("camera evaluation: no ground-truth poses");
   if (gt.size() != est.size()) {
     return absl::InvalidArgumentError("camera evaluation: " + std::to_string(est.size()) +
@@ -292,7 +291,8 @@ absl::StatusOr<ObjectEvaluation> EvaluateObjects(const std::vector<ObjectGtRow>&
         if (tracked.count(f + 1)) {
           const geometry::SE3d& g0 = gt_frames.at(f)->world_from_object;
           const geometry::SE3d& g1 = gt_frames.at(f + 1)->world_from_object;
-          const geometry::SE3d err = (g0.Inverse() * g1).Inverse() * (prop[f].Inverse() * prop[f + 1]);
+          const geometry::SE3d err =
+              (g0.Inverse() * g1).Inverse() * (prop[f].Inverse() * prop[f + 1]);
           m.sum_rpe_t += err.translation().norm();
           m.sum_rpe_r_deg += RotationAngleDeg(err.so3());
           m.distance_m += (g1.translation() - g0.translation()).norm();
@@ -355,7 +355,8 @@ absl::StatusOr<ObjectEvaluation> EvaluateObjects(const std::vector<ObjectGtRow>&
       }
     }
     a.coverage = SafeDiv(static_cast<double>(a.tracked_frames), static_cast<double>(a.gt_frames));
-    if (has_vis) a.visible_coverage = SafeDiv(static_cast<double>(vis_tracked), static_cast<double>(vis_gt));
+    if (has_vis)
+      a.visible_coverage = SafeDiv(static_cast<double>(vis_tracked), static_cast<double>(vis_gt));
     if (ate_frames > 0) a.ate = std::sqrt(sum_sq / static_cast<double>(ate_frames));
     if (dist > 1e-3) {
       a.rpe_t_per_m = sum_t / dist;
@@ -373,18 +374,24 @@ absl::StatusOr<ObjectEvaluation> EvaluateObjects(const std::vector<ObjectGtRow>&
 std::string FormatCameraTable(const CameraMetrics& m) {
   std::string out;
   char buf[256];
-  std::snprintf(buf, sizeof(buf), "camera: %" PRId64 " frames, %" PRId64
-                " pairs, ground-truth path %.2f m\n",
-                m.num_frames, m.num_pairs, m.gt_path_length);
+  std::snprintf(buf,
+                sizeof(buf),
+                "camera: %" PRId64 " frames, %" PRId64 " pairs, ground-truth path %.2f m\n",
+                m.num_frames,
+                m.num_pairs,
+                m.gt_path_length);
   out += buf;
   std::snprintf(buf, sizeof(buf), "  RPE_t  %10.5f m/frame   (max %.5f)\n", m.rpe_t, m.rpe_t_max);
   out += buf;
-  std::snprintf(buf, sizeof(buf), "  RPE_R  %10.5f deg/frame (max %.5f)\n", m.rpe_r_deg,
-                m.rpe_r_deg_max);
+  std::snprintf(
+      buf, sizeof(buf), "  RPE_R  %10.5f deg/frame (max %.5f)\n", m.rpe_r_deg, m.rpe_r_deg_max);
   out += buf;
-  std::snprintf(buf, sizeof(buf),
-                "  ATE    %10.5f m RMSE after SE(3) alignment (mean %.5f, max %.5f)\n", m.ate_rmse,
-                m.ate_mean, m.ate_max);
+  std::snprintf(buf,
+                sizeof(buf),
+                "  ATE    %10.5f m RMSE after SE(3) alignment (mean %.5f, max %.5f)\n",
+                m.ate_rmse,
+                m.ate_mean,
+                m.ate_max);
   out += buf;
   return out;
 }
@@ -392,32 +399,62 @@ std::string FormatCameraTable(const CameraMetrics& m) {
 std::string FormatObjectTable(const ObjectEvaluation& e) {
   std::string out;
   char buf[512];
-  std::snprintf(buf, sizeof(buf),
+  std::snprintf(buf,
+                sizeof(buf),
                 "objects: %zu ground-truth, %d estimated tracks (%d unassociated)\n",
-                e.objects.size(), e.num_est_tracks, e.num_unmatched_est_tracks);
+                e.objects.size(),
+                e.num_est_tracks,
+                e.num_unmatched_est_tracks);
   out += buf;
-  std::snprintf(buf, sizeof(buf), "  %6s %5s %-6s %6s %5s %6s %6s %8s %9s %9s %9s %5s\n", "id",
-                "class", "motion", "frames", "est", "cov", "viscov", "ATE_m", "RPEt_m/m",
-                "RPER_d/m", "speed_kmh", "frag");
+  std::snprintf(buf,
+                sizeof(buf),
+                "  %6s %5s %-6s %6s %5s %6s %6s %8s %9s %9s %9s %5s\n",
+                "id",
+                "class",
+                "motion",
+                "frames",
+                "est",
+                "cov",
+                "viscov",
+                "ATE_m",
+                "RPEt_m/m",
+                "RPER_d/m",
+                "speed_kmh",
+                "frag");
   out += buf;
   for (const ObjectMetrics& m : e.objects) {
-    std::snprintf(buf, sizeof(buf), "  %6" PRId64 " %5d %-6s %6" PRId64 " %5s %6s %6s %8s %9s %9s %9s %5d\n",
-                  m.gt_track_id, m.class_id, m.moving ? "moving" : "static", m.gt_frames,
+    std::snprintf(buf,
+                  sizeof(buf),
+                  "  %6" PRId64 " %5d %-6s %6" PRId64 " %5s %6s %6s %8s %9s %9s %9s %5d\n",
+                  m.gt_track_id,
+                  m.class_id,
+                  m.moving ? "moving" : "static",
+                  m.gt_frames,
                   m.est_track_id >= 0 ? std::to_string(m.est_track_id).c_str() : "-",
-                  Num(m.coverage, "%.3f").c_str(), Num(m.visible_coverage, "%.3f").c_str(),
-                  Num(m.ate).c_str(), Num(m.rpe_t_per_m).c_str(), Num(m.rpe_r_deg_per_m).c_str(),
-                  Num(m.speed_error_kmh, "%.3f").c_str(), m.num_est_tracks);
+                  Num(m.coverage, "%.3f").c_str(),
+                  Num(m.visible_coverage, "%.3f").c_str(),
+                  Num(m.ate).c_str(),
+                  Num(m.rpe_t_per_m).c_str(),
+                  Num(m.rpe_r_deg_per_m).c_str(),
+                  Num(m.speed_error_kmh, "%.3f").c_str(),
+                  m.num_est_tracks);
     out += buf;
   }
   for (const auto& [name, a] : {std::pair<const char*, const ObjectAggregate&>{"all", e.all},
                                 {"moving", e.moving},
                                 {"static", e.static_objects}}) {
-    std::snprintf(buf, sizeof(buf),
+    std::snprintf(buf,
+                  sizeof(buf),
                   "  %-6s n=%d tracked=%d coverage=%s viscov=%s ATE=%s m RPE_t=%s m/m "
                   "RPE_R=%s deg/m speed_err=%s km/h\n",
-                  name, a.num_objects, a.num_tracked, Num(a.coverage, "%.3f").c_str(),
-                  Num(a.visible_coverage, "%.3f").c_str(), Num(a.ate).c_str(),
-                  Num(a.rpe_t_per_m).c_str(), Num(a.rpe_r_deg_per_m).c_str(),
+                  name,
+                  a.num_objects,
+                  a.num_tracked,
+                  Num(a.coverage, "%.3f").c_str(),
+                  Num(a.visible_coverage, "%.3f").c_str(),
+                  Num(a.ate).c_str(),
+                  Num(a.rpe_t_per_m).c_str(),
+                  Num(a.rpe_r_deg_per_m).c_str(),
                   Num(a.speed_error_kmh, "%.3f").c_str());
     out += buf;
   }

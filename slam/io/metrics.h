@@ -21,14 +21,13 @@
 // moving = mean ground-truth speed above a threshold.
 #pragma once
 
+#include <Eigen/Core>
 #include <cmath>
 #include <cstdint>
 #include <map>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <Eigen/Core>
-#include <opencv2/core.hpp>
 
 #include "absl/status/statusor.h"
 #include "slam/geometry/se3.h"
@@ -49,23 +48,24 @@ geometry::SE3d AlignRigid(const std::vector<Eigen::Vector3d>& est,
 struct CameraMetrics {
   int64_t num_frames = 0;
   int64_t num_pairs = 0;
-  double rpe_t = 0;            // m/frame, mean over consecutive pairs
-  double rpe_r_deg = 0;        // °/frame, mean
+  double rpe_t = 0;      // m/frame, mean over consecutive pairs
+  double rpe_r_deg = 0;  // °/frame, mean
   double rpe_t_max = 0;
   double rpe_r_deg_max = 0;
-  double ate_rmse = 0;         // m, after rigid alignment
+  double ate_rmse = 0;  // m, after rigid alignment
   double ate_mean = 0;
   double ate_max = 0;
-  double gt_path_length = 0;   // m
-  geometry::SE3d alignment;    // gt_from_est used for the ATE
-  std::vector<double> rpe_t_per_pair;      // size num_pairs
+  double gt_path_length = 0;           // m
+  geometry::SE3d alignment;            // gt_from_est used for the ATE
+  std::vector<double> rpe_t_per_pair;  // size num_pairs
   std::vector<double> rpe_r_deg_per_pair;
-  std::vector<double> ate_per_frame;       // size num_frames
+  std::vector<double> ate_per_frame;  // size num_frames
 };
 
 // Fails when the sizes differ or are 0.
-absl::StatusOr<CameraMetrics> EvaluateCamera(const std::vector<geometry::SE3d>& gt_world_from_camera,
-                                             const std::vector<geometry::SE3d>& est_world_from_camera);
+absl::StatusOr<CameraMetrics> EvaluateCamera(
+    const std::vector<geometry::SE3d>& gt_world_from_camera,
+    const std::vector<geometry::SE3d>& est_world_from_camera);
 
 struct ObjectEvalOptions {
   double moving_speed_mps = 0.5;  // moving when the mean GT speed exceeds this
@@ -94,15 +94,15 @@ struct ObjectMetrics {
   int64_t visible_gt_frames = -1;  // -1: no pixel counts
   int64_t visible_tracked_frames = -1;
   double visible_coverage = NAN;
-  double ate = NAN;                 // m
-  double distance_m = 0;            // GT distance over the evaluated pairs
+  double ate = NAN;       // m
+  double distance_m = 0;  // GT distance over the evaluated pairs
   int64_t num_pairs = 0;
-  double rpe_t_per_m = NAN;         // m/m (NaN when distance < 1e-3 m)
-  double rpe_r_deg_per_m = NAN;     // °/m
-  double rpe_t_per_frame = NAN;     // m/frame
-  double rpe_r_deg_per_frame = NAN; // °/frame
+  double rpe_t_per_m = NAN;          // m/m (NaN when distance < 1e-3 m)
+  double rpe_r_deg_per_m = NAN;      // °/m
+  double rpe_t_per_frame = NAN;      // m/frame
+  double rpe_r_deg_per_frame = NAN;  // °/frame
   int64_t speed_samples = 0;
-  double speed_error_kmh = NAN;     // from the estimated twists
+  double speed_error_kmh = NAN;       // from the estimated twists
   double speed_error_pose_kmh = NAN;  // from finite differences of the propagated poses
   // Accumulators for pooled aggregates.
   double sum_sq_ate = 0;
@@ -116,12 +116,12 @@ struct ObjectAggregate {
   int num_tracked = 0;
   int64_t gt_frames = 0;
   int64_t tracked_frames = 0;
-  double coverage = NAN;          // tracked_frames / gt_frames
+  double coverage = NAN;  // tracked_frames / gt_frames
   double visible_coverage = NAN;
-  double ate = NAN;               // pooled RMSE over all tracked frames
-  double rpe_t_per_m = NAN;       // Σ errors / Σ distance
+  double ate = NAN;          // pooled RMSE over all tracked frames
+  double rpe_t_per_m = NAN;  // Σ errors / Σ distance
   double rpe_r_deg_per_m = NAN;
-  double speed_error_kmh = NAN;   // mean over all samples
+  double speed_error_kmh = NAN;  // mean over all samples
 };
 
 struct ObjectEvaluation {

@@ -18,7 +18,8 @@ struct Property {
 int TypeSize(const std::string& t) {
   if (t == "char" || t == "uchar" || t == "int8" || t == "uint8") return 1;
   if (t == "short" || t == "ushort" || t == "int16" || t == "uint16") return 2;
-  if (t == "int" || t == "uint" || t == "float" || t == "int32" || t == "uint32" || t == "float32") {
+  if (t == "int" || t == "uint" || t == "float" || t == "int32" || t == "uint32" ||
+      t == "float32") {
     return 4;
   }
   if (t == "double" || t == "float64") return 8;
@@ -135,8 +136,8 @@ absl::StatusOr<std::vector<PlyPoint>> ReadPlyPoints(const std::string& path) {
       for (int64_t k = 0; k < e.count; ++k, ++li) {
         if (li >= lines.size()) {
           return absl::InvalidArgumentError(path + ": truncated: element " + e.name + " has " +
-                                            std::to_string(k) + " of " +
-                                            std::to_string(e.count) + " rows");
+                                            std::to_string(k) + " of " + std::to_string(e.count) +
+                                            " rows");
         }
         if (e.name != "vertex") continue;
         const auto f = SplitFields(lines[li].text);
@@ -151,8 +152,8 @@ absl::StatusOr<std::vector<PlyPoint>> ReadPlyPoints(const std::string& path) {
           }
           double v = 0;
           if (fi >= f.size() || !ParseDouble(f[fi], &v)) {
-            return absl::InvalidArgumentError(path + ": malformed vertex row " +
-                                              std::to_string(k) + " (property " + p.name + ")");
+            return absl::InvalidArgumentError(path + ": malformed vertex row " + std::to_string(k) +
+                                              " (property " + p.name + ")");
           }
           Assign(p.name, v, &pt);
           ++fi;

@@ -4,11 +4,10 @@
 // `cluster_id` and uchar `red green blue`; other properties are skipped.
 #pragma once
 
+#include <Eigen/Core>
 #include <cstdint>
 #include <string>
 #include <vector>
-
-#include <Eigen/Core>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -17,7 +16,7 @@ namespace twist::io {
 
 struct PlyPoint {
   Eigen::Vector3d p_in_world = Eigen::Vector3d::Zero();
-  int class_id = -1;    // -1: not in the file
+  int class_id = -1;  // -1: not in the file
   int64_t cluster_id = -1;
   uint8_t r = 0, g = 0, b = 0;
   bool has_colour = false;

@@ -58,7 +58,9 @@ std::string RunOutputWriter::SummaryJson(const RunInfo& info) const {
   w.Key("frames").Int(num_frames());
   w.Key("wall_time_s").Number(info.wall_time_s);
   std::map<std::string, int64_t> states;
-  for (TrackingState s : {TrackingState::kNotInitialized, TrackingState::kOk, TrackingState::kLost,
+  for (TrackingState s : {TrackingState::kNotInitialized,
+                          TrackingState::kOk,
+                          TrackingState::kLost,
                           TrackingState::kRelocalized}) {
     states[TrackingStateName(s)] = 0;
   }

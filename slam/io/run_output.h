@@ -24,10 +24,10 @@
 namespace twist::io {
 
 struct RunInfo {
-  std::string dataset;   // dataset directory
-  std::string format;    // kitti-odometry | kitti-tracking
+  std::string dataset;  // dataset directory
+  std::string format;   // kitti-odometry | kitti-tracking
   std::string sequence;
-  std::string mode;      // e.g. "embedded", "server 127.0.0.1:50051"
+  std::string mode;  // e.g. "embedded", "server 127.0.0.1:50051"
   double wall_time_s = 0;
   // Extra scalar fields added to summary.json at the top level.
   std::vector<std::pair<std::string, double>> numbers;

@@ -1,13 +1,13 @@
 #include "slam/io/sequence.h"
 
+#include <glog/logging.h>
+
 #include <algorithm>
 #include <cctype>
 #include <cstdio>
 #include <filesystem>
 #include <set>
 #include <system_error>
-
-#include <glog/logging.h>
 
 #include "slam/io/file_util.h"
 #include "slam/io/image_io.h"
@@ -93,10 +93,9 @@ absl::Status SetImageSize(const std::string& left0, geometry::StereoCamera* came
   camera->height = image->rows;
   absl::Status s = camera->Validate();
   if (!s.ok()) {
-    return absl::InvalidArgumentError("calibration does not fit " + left0 + " (" +
-                                      std::to_string(image->cols) + "x" +
-                                      std::to_string(image->rows) + "): " +
-                                      std::string(s.message()));
+    return absl::InvalidArgumentError(
+        "calibration does not fit " + left0 + " (" + std::to_string(image->cols) + "x" +
+        std::to_string(image->rows) + "): " + std::string(s.message()));
   }
   return absl::OkStatus();
 }
@@ -111,7 +110,8 @@ absl::Status OpenOdometry(const std::string& dir,
                           std::vector<geometry::SE3d>* poses) {
   const std::string sequences = JoinPath(dir, "sequences");
   if (!DirExists(sequences)) {
-    return absl::NotFoundError(sequences + ": no such directory (expected the KITTI odometry "
+    return absl::NotFoundError(sequences +
+                               ": no such directory (expected the KITTI odometry "
                                "layout DIR/sequences/SS/...)");
   }
   const std::string seq = ResolveSequenceName(sequences, seq_in, 2);
@@ -130,13 +130,15 @@ absl::Status OpenOdometry(const std::string& dir,
   const std::string times_path = JoinPath(seq_dir, "times.txt");
   auto t = ReadTimes(times_path);
   if (!t.ok()) return t.status();
-  if (static_cast<int64_t>(t->size()) != *n) return CountMismatch(times_path, t->size(), *n, "times");
+  if (static_cast<int64_t>(t->size()) != *n)
+    return CountMismatch(times_path, t->size(), *n, "times");
   *times = std::move(*t);
   const std::string poses_path = JoinPath(JoinPath(dir, "poses"), seq + ".txt");
   if (FileExists(poses_path)) {
     auto p = ReadKittiPoses(poses_path);
     if (!p.ok()) return p.status();
-    if (static_cast<int64_t>(p->size()) != *n) return CountMismatch(poses_path, p->size(), *n, "poses");
+    if (static_cast<int64_t>(p->size()) != *n)
+      return CountMismatch(poses_path, p->size(), *n, "poses");
     *poses = std::move(*p);
   }
   return SetImageSize((*left)[0], camera);
@@ -200,8 +202,13 @@ absl::StatusOr<std::unique_ptr<SequenceReader>> OpenSequence(const std::string& 
   std::unique_ptr<SequenceReader> r(new SequenceReader());
   r->format_ = format;
   if (format == DatasetFormat::kKittiOdometry) {
-    absl::Status s = OpenOdometry(dir_in, seq_in, &r->sequence_, &r->camera_,
-                                  &r->left_paths_, &r->right_paths_, &r->timestamps_ns_,
+    absl::Status s = OpenOdometry(dir_in,
+                                  seq_in,
+                                  &r->sequence_,
+                                  &r->camera_,
+                                  &r->left_paths_,
+                                  &r->right_paths_,
+                                  &r->timestamps_ns_,
                                   &r->gt_world_from_camera_);
     if (!s.ok()) return s;
     r->has_times_file_ = true;
@@ -215,7 +222,8 @@ absl::StatusOr<std::unique_ptr<SequenceReader>> OpenSequence(const std::string& 
   }
   const std::string image_02 = JoinPath(dir, "image_02");
   if (!DirExists(image_02)) {
-    return absl::NotFoundError(image_02 + ": no such directory (expected the KITTI tracking "
+    return absl::NotFoundError(image_02 +
+                               ": no such directory (expected the KITTI tracking "
                                "layout DIR/image_02/SSSS/...)");
   }
   const std::string seq = ResolveSequenceName(image_02, seq_in, 4);
@@ -248,7 +256,8 @@ absl::StatusOr<std::unique_ptr<SequenceReader>> OpenSequence(const std::string& 
   if (FileExists(times_path)) {
     auto t = ReadTimes(times_path);
     if (!t.ok()) return t.status();
-    if (static_cast<int64_t>(t->size()) != *n) return CountMismatch(times_path, t->size(), *n, "times");
+    if (static_cast<int64_t>(t->size()) != *n)
+      return CountMismatch(times_path, t->size(), *n, "times");
     r->timestamps_ns_ = std::move(*t);
     r->has_times_file_ = true;
   } else {
@@ -259,7 +268,8 @@ absl::StatusOr<std::unique_ptr<SequenceReader>> OpenSequence(const std::string& 
   if (FileExists(poses_path)) {
     auto p = ReadKittiPoses(poses_path);
     if (!p.ok()) return p.status();
-    if (static_cast<int64_t>(p->size()) != *n) return CountMismatch(poses_path, p->size(), *n, "poses");
+    if (static_cast<int64_t>(p->size()) != *n)
+      return CountMismatch(poses_path, p->size(), *n, "poses");
     r->gt_world_from_camera_ = std::move(*p);
   }
 
@@ -310,7 +320,8 @@ absl::StatusOr<cv::Mat> SequenceReader::ReadMask(int64_t i) const {
   const std::string& path = mask_paths_[static_cast<size_t>(i)];
   absl::StatusOr<cv::Mat> mask = ReadLabelImage16(path);
   if (!mask.ok()) return mask.status();
-  absl::Status s = CheckSameSize(*mask, path, cv::Size(camera_.width, camera_.height), "the images");
+  absl::Status s =
+      CheckSameSize(*mask, path, cv::Size(camera_.width, camera_.height), "the images");
   if (!s.ok()) return s;
   if (masks_are_mots_) return MotsToPanoptic(*mask);
   return mask;
@@ -335,10 +346,9 @@ absl::StatusOr<StereoFrame> SequenceReader::ReadFrame(int64_t i) const {
   s = CheckSameSize(*right, right_paths_[k], left->size(), "the left image");
   if (!s.ok()) return s;
   if (right->type() != left->type()) {
-    return absl::InvalidArgumentError(right_paths_[k] + ": has " +
-                                      std::to_string(right->channels()) +
-                                      " channels but the left image has " +
-                                      std::to_string(left->channels()));
+    return absl::InvalidArgumentError(
+        right_paths_[k] + ": has " + std::to_string(right->channels()) +
+        " channels but the left image has " + std::to_string(left->channels()));
   }
   frame.left = *left;
   frame.right = *right;

@@ -27,11 +27,10 @@
 #include <cstdint>
 #include <map>
 #include <memory>
+#include <opencv2/core.hpp>
 #include <optional>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "absl/status/statusor.h"
 #include "slam/common/stereo_frame.h"
@@ -89,8 +88,8 @@ class SequenceReader {
 
  private:
   friend absl::StatusOr<std::unique_ptr<SequenceReader>> OpenSequence(const std::string&,
-                                                                       DatasetFormat,
-                                                                       const std::string&);
+                                                                      DatasetFormat,
+                                                                      const std::string&);
   SequenceReader() = default;
 
   DatasetFormat format_ = DatasetFormat::kKittiOdometry;

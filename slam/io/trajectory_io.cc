@@ -1,11 +1,10 @@
 #include "slam/io/trajectory_io.h"
 
+#include <Eigen/SVD>
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
 #include <limits>
-
-#include <Eigen/SVD>
 
 #include "slam/io/file_util.h"
 
@@ -22,8 +21,8 @@ absl::Status ParseQuaternion(const std::string& path,
                              Eigen::Quaterniond* q) {
   const double norm = std::sqrt(qx * qx + qy * qy + qz * qz + qw * qw);
   if (!(std::abs(norm - 1.0) < 1e-3)) {
-    return LineError(path, line,
-                     "quaternion (qx qy qz qw) has norm " + FormatDouble(norm) + ", expected 1");
+    return LineError(
+        path, line, "quaternion (qx qy qz qw) has norm " + FormatDouble(norm) + ", expected 1");
   }
   *q = Eigen::Quaterniond(qw / norm, qx / norm, qy / norm, qz / norm);
   return absl::OkStatus();
@@ -34,8 +33,16 @@ void AppendPose7(const geometry::SE3d& pose, std::string* out) {
   Eigen::Quaterniond q = pose.unit_quaternion();
   if (q.w() < 0) q.coeffs() = -q.coeffs();  // canonical sign
   char buf[256];
-  std::snprintf(buf, sizeof(buf), "%.9g %.9g %.9g %.9g %.9g %.9g %.9g", t.x(), t.y(), t.z(), q.x(),
-                q.y(), q.z(), q.w());
+  std::snprintf(buf,
+                sizeof(buf),
+                "%.9g %.9g %.9g %.9g %.9g %.9g %.9g",
+                t.x(),
+                t.y(),
+                t.z(),
+                q.x(),
+                q.y(),
+                q.z(),
+                q.w());
   *out += buf;
 }
 
@@ -45,8 +52,8 @@ absl::StatusOr<int64_t> IntField(const std::string& path,
                                  const char* name) {
   int64_t v = 0;
   if (!ParseInt64(token, &v)) {
-    return LineError(path, line.number,
-                     std::string(name) + " '" + std::string(token) + "' is not an integer");
+    return LineError(
+        path, line.number, std::string(name) + " '" + std::string(token) + "' is not an integer");
   }
   return v;
 }
@@ -59,7 +66,8 @@ absl::Status DoubleFields(const std::string& path,
                           double* out) {
   for (size_t i = 0; i < count; ++i) {
     if (!ParseDouble(fields[first + i], &out[i])) {
-      return LineError(path, line.number,
+      return LineError(path,
+                       line.number,
                        "field " + std::to_string(first + i + 1) + " '" +
                            std::string(fields[first + i]) + "' is not a finite number");
     }
@@ -91,7 +99,8 @@ absl::StatusOr<std::vector<geometry::SE3d>> ReadKittiPoses(const std::string& pa
       t(row) = v[row * 4 + 3];
     }
     const double det = r.determinant();
-    if (!(det > 0.5 && det < 1.5) || (r.transpose() * r - Eigen::Matrix3d::Identity()).norm() > 0.1) {
+    if (!(det > 0.5 && det < 1.5) ||
+        (r.transpose() * r - Eigen::Matrix3d::Identity()).norm() > 0.1) {
       return LineError(path, line.number, "the 3x3 part is not a rotation matrix");
     }
     poses.emplace_back(NearestRotation(r), t);
@@ -152,8 +161,12 @@ std::string FormatTimes(const std::vector<int64_t>& timestamps_ns) {
   char buf[48];
   for (int64_t ns : timestamps_ns) {
     // Exact decimal seconds with nanosecond digits.
-    std::snprintf(buf, sizeof(buf), "%s%" PRId64 ".%09" PRId64 "\n", ns < 0 ? "-" : "",
-                  std::abs(ns) / 1000000000, std::abs(ns) % 1000000000);
+    std::snprintf(buf,
+                  sizeof(buf),
+                  "%s%" PRId64 ".%09" PRId64 "\n",
+                  ns < 0 ? "-" : "",
+                  std::abs(ns) / 1000000000,
+                  std::abs(ns) % 1000000000);
     out += buf;
   }
   return out;
@@ -184,8 +197,12 @@ std::string FormatTumTrajectory(const std::vector<StampedPose>& poses) {
   char buf[48];
   for (const StampedPose& p : poses) {
     const int64_t ns = p.timestamp_ns;
-    std::snprintf(buf, sizeof(buf), "%s%" PRId64 ".%09" PRId64 " ", ns < 0 ? "-" : "",
-                  std::abs(ns) / 1000000000, std::abs(ns) % 1000000000);
+    std::snprintf(buf,
+                  sizeof(buf),
+                  "%s%" PRId64 ".%09" PRId64 " ",
+                  ns < 0 ? "-" : "",
+                  std::abs(ns) / 1000000000,
+                  std::abs(ns) % 1000000000);
     out += buf;
     AppendPose7(p.world_from_camera, &out);
     out += '\n';
@@ -204,7 +221,8 @@ absl::StatusOr<std::vector<ObjectTrackRow>> ReadObjectTracks(const std::string& 
   for (const TextLine& line : SplitLines(*text, /*skip_comments=*/true)) {
     const std::vector<std::string_view> f = SplitFields(line.text);
     if (f.size() != 16 && f.size() != 17) {
-      return LineError(path, line.number,
+      return LineError(path,
+                       line.number,
                        "expected 16 fields (frame track_id class tx ty tz qx qy qz qw vx vy vz "
                        "wx wy wz) or 17 (+ instance_id), found " +
                            std::to_string(f.size()));
@@ -242,13 +260,12 @@ std::string FormatObjectTracks(const std::vector<ObjectTrackRow>& rows) {
   std::string out;
   char buf[256];
   for (const ObjectTrackRow& r : rows) {
-    std::snprintf(buf, sizeof(buf), "%" PRId64 " %" PRId64 " %d ", r.frame, r.track_id,
-                  r.class_id);
+    std::snprintf(buf, sizeof(buf), "%" PRId64 " %" PRId64 " %d ", r.frame, r.track_id, r.class_id);
     out += buf;
     AppendPose7(r.world_from_object, &out);
     const geometry::Vector6d& x = r.twist_in_world;
-    std::snprintf(buf, sizeof(buf), " %.9g %.9g %.9g %.9g %.9g %.9g", x(0), x(1), x(2), x(3), x(4),
-                  x(5));
+    std::snprintf(
+        buf, sizeof(buf), " %.9g %.9g %.9g %.9g %.9g %.9g", x(0), x(1), x(2), x(3), x(4), x(5));
     out += buf;
     if (r.instance_id >= 0) {
       std::snprintf(buf, sizeof(buf), " %" PRId64, r.instance_id);
@@ -270,7 +287,8 @@ absl::StatusOr<std::vector<ObjectGtRow>> ReadObjectsGt(const std::string& path) 
   for (const TextLine& line : SplitLines(*text, /*skip_comments=*/true)) {
     const std::vector<std::string_view> f = SplitFields(line.text);
     if (f.size() != 10) {
-      return LineError(path, line.number,
+      return LineError(path,
+                       line.number,
                        "expected 10 fields (frame track_id class tx ty tz qx qy qz qw), found " +
                            std::to_string(f.size()));
     }
@@ -301,8 +319,7 @@ std::string FormatObjectsGt(const std::vector<ObjectGtRow>& rows) {
   std::string out;
   char buf[96];
   for (const ObjectGtRow& r : rows) {
-    std::snprintf(buf, sizeof(buf), "%" PRId64 " %" PRId64 " %d ", r.frame, r.track_id,
-                  r.class_id);
+    std::snprintf(buf, sizeof(buf), "%" PRId64 " %" PRId64 " %d ", r.frame, r.track_id, r.class_id);
     out += buf;
     AppendPose7(r.world_from_object, &out);
     out += '\n';

@@ -57,7 +57,7 @@ struct ObjectTrackRow {
   int class_id = 0;
   geometry::SE3d world_from_object;
   geometry::Vector6d twist_in_world = geometry::Vector6d::Zero();  // (v, ω) per second
-  int64_t instance_id = -1;  // -1: not written / unknown
+  int64_t instance_id = -1;                                        // -1: not written / unknown
 };
 absl::StatusOr<std::vector<ObjectTrackRow>> ReadObjectTracks(const std::string& path);
 std::string FormatObjectTracks(const std::vector<ObjectTrackRow>& rows);

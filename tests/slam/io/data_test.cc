@@ -1,10 +1,10 @@
 // Tests on the real KITTI extracts in ../shared/data (skipped when absent).
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
-
-#include <gmock/gmock.h>
-#include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
 #include "slam/io/kitti_calib.h"
@@ -21,8 +21,8 @@ using geometry::SE3d;
 using geometry::SO3d;
 using testing_util::SharedDataDir;
 
-#define REQUIRE_DATA(sub)                                                           \
-  const std::string data_path = SharedDataDir() + "/" + (sub);                      \
+#define REQUIRE_DATA(sub)                                      \
+  const std::string data_path = SharedDataDir() + "/" + (sub); \
   if (!std::filesystem::exists(data_path)) GTEST_SKIP() << data_path << " absent"
 
 std::string Seq4(int s) {
@@ -75,7 +75,7 @@ TEST(KittiData, AllTrackingLabelsAndCalibrationsParse) {
 TEST(KittiData, ProjectedBoxesFallOnLabelledBoxes) {
   REQUIRE_DATA("kitti_tracking_samples");
   const std::vector<std::pair<int, std::vector<int>>> samples = {{1, {10, 15, 20}},
-                                                                  {16, {2, 7, 12}}};
+                                                                 {16, {2, 7, 12}}};
   int checked = 0;
   std::vector<double> errors;
   for (const auto& [s, frames] : samples) {
@@ -115,8 +115,8 @@ TEST(KittiData, ProjectedBoxesFallOnLabelledBoxes) {
         // hugs the silhouette while the 3D box is wider than the body, so only
         // the vertical extent must agree and the labelled box must lie inside
         // the projected one horizontally.
-        const bool rigid = l.type == "Car" || l.type == "Van" || l.type == "Truck" ||
-                           l.type == "Tram";
+        const bool rigid =
+            l.type == "Car" || l.type == "Van" || l.type == "Truck" || l.type == "Tram";
         const double vertical = std::max(std::abs(v0 - l.y1), std::abs(v1 - l.y2));
         const double horizontal = rigid ? std::max(std::abs(u0 - l.x1), std::abs(u1 - l.x2))
                                         : std::max({u0 - l.x1, l.x2 - u1, 0.0});
@@ -127,10 +127,10 @@ TEST(KittiData, ProjectedBoxesFallOnLabelledBoxes) {
         EXPECT_LE(l.x2, image.cols + 1);
         // Vehicles agree to about a pixel (3 px at most, near cars); people and
         // cyclists to a few pixels.
-        EXPECT_LE(err, rigid ? 3.0 : 5.0) << seq << " frame " << f << " track " << l.track_id << " " << l.type
-                            << " box (" << l.x1 << "," << l.y1 << ")-(" << l.x2 << "," << l.y2
-                            << ") projected (" << u0 << "," << v0 << ")-(" << u1 << "," << v1
-                            << ")";
+        EXPECT_LE(err, rigid ? 3.0 : 5.0)
+            << seq << " frame " << f << " track " << l.track_id << " " << l.type << " box (" << l.x1
+            << "," << l.y1 << ")-(" << l.x2 << "," << l.y2 << ") projected (" << u0 << "," << v0
+            << ")-(" << u1 << "," << v1 << ")";
         if (!rigid) {
           EXPECT_LT(u1 - u0, 3.0 * (l.x2 - l.x1)) << "projected box far too wide";
         }
@@ -142,8 +142,10 @@ TEST(KittiData, ProjectedBoxesFallOnLabelledBoxes) {
   ASSERT_GE(checked, 10);
   std::sort(errors.begin(), errors.end());
   EXPECT_LE(errors[errors.size() / 2], 1.0) << "median edge error";
-  std::printf("checked %d boxes: median error %.2f px, max %.2f px\n", checked,
-              errors[errors.size() / 2], errors.back());
+  std::printf("checked %d boxes: median error %.2f px, max %.2f px\n",
+              checked,
+              errors[errors.size() / 2],
+              errors.back());
   // A wrong calibration (e.g. P0 instead of P2, or the box origin at the centre
   // instead of the bottom) would move every box by many pixels.
 }
@@ -196,7 +198,8 @@ TEST(KittiData, InjectedDriftGivesExpectedRpe) {
   ASSERT_TRUE(gt.ok()) << gt.status();
   ASSERT_EQ(gt->size(), 4541u);
   // 1 cm forward and 0.02° of yaw extra every frame (relative drift).
-  const SE3d delta(SO3d::Exp(Eigen::Vector3d(0, 0.02 * M_PI / 180, 0)), Eigen::Vector3d(0, 0, 0.01));
+  const SE3d delta(SO3d::Exp(Eigen::Vector3d(0, 0.02 * M_PI / 180, 0)),
+                   Eigen::Vector3d(0, 0, 0.01));
   std::vector<SE3d> est = {(*gt)[0]};
   for (size_t i = 0; i + 1 < gt->size(); ++i) {
     est.push_back(est.back() * ((*gt)[i].Inverse() * (*gt)[i + 1]) * delta);

@@ -1,12 +1,13 @@
 // EvaluateRunDirectory: a small kitti-tracking dataset with exact ground truth
 // evaluated against outputs written by RunOutputWriter.
-#include <cmath>
+#include "slam/io/evaluation.h"
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+
+#include <cmath>
 #include <opencv2/imgcodecs.hpp>
 
-#include "slam/io/evaluation.h"
 #include "slam/io/file_util.h"
 #include "slam/io/run_output.h"
 #include "tests/slam/io/test_util.h"
@@ -16,9 +17,9 @@ namespace {
 
 using geometry::SE3d;
 using geometry::SO3d;
+using ::testing::HasSubstr;
 using testing_util::ScratchDir;
 using testing_util::WriteText;
-using ::testing::HasSubstr;
 
 constexpr int kN = 12;
 constexpr int kW = 64;
@@ -46,8 +47,8 @@ void MakeDataset(const std::string& root) {
     cv::imwrite(root + "/image_02/0000/" + name, cv::Mat(kH, kW, CV_8UC1, cv::Scalar(i)));
     cv::imwrite(root + "/image_03/0000/" + name, cv::Mat(kH, kW, CV_8UC1, cv::Scalar(i)));
     cv::Mat pan(kH, kW, CV_16UC1, cv::Scalar(7000));
-    pan(cv::Rect(0, 0, 20, 20)).setTo(26005);                  // 400 px
-    pan(cv::Rect(40, 0, i < 6 ? 20 : 5, 10)).setTo(26006);     // 200 px, then 50 px
+    pan(cv::Rect(0, 0, 20, 20)).setTo(26005);               // 400 px
+    pan(cv::Rect(40, 0, i < 6 ? 20 : 5, 10)).setTo(26006);  // 200 px, then 50 px
     cv::imwrite(root + "/panoptic/0000/" + name, pan);
     poses.push_back(CameraPose(i));
     for (int id : {5, 6}) objects.push_back({i, id, 26, ObjectPose(id, i)});

@@ -1,11 +1,11 @@
 // Text formats, calibration, labels, images, JSON: round trips and every
 // failure mode naming the file and the problem.
-#include <cmath>
-#include <random>
-
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+
+#include <cmath>
 #include <opencv2/imgcodecs.hpp>
+#include <random>
 
 #include "slam/io/file_util.h"
 #include "slam/io/image_io.h"
@@ -21,9 +21,9 @@ namespace twist::io {
 namespace {
 
 using geometry::SE3d;
+using ::testing::HasSubstr;
 using testing_util::ScratchDir;
 using testing_util::WriteText;
-using ::testing::HasSubstr;
 
 SE3d RandomPose(std::mt19937* rng) {
   std::normal_distribution<double> n(0.0, 1.0);
@@ -133,7 +133,8 @@ TEST(KittiPoses, Failures) {
   WriteText(dir / "notrot.txt", "2 0 0 0 0 1 0 0 0 0 1 0\n");
   r = ReadKittiPoses(dir / "notrot.txt");
   ASSERT_FALSE(r.ok());
-  EXPECT_THAT(std::string(r.status().message()), HasSubstr("notrot.txt:1: the 3x3 part is not a rotation"));
+  EXPECT_THAT(std::string(r.status().message()),
+              HasSubstr("notrot.txt:1: the 3x3 part is not a rotation"));
 
   WriteText(dir / "empty.txt", "\n");
   r = ReadKittiPoses(dir / "empty.txt");
@@ -288,14 +289,14 @@ TEST(Calib, TrackingBothSpellings) {
       "P1: 700 0 600 -350 0 700 180 0 0 0 1 0\n"
       "P2: 700 0 600 42 0 700 180 0.7 0 0 1 0.001\n"
       "P3: 700 0 600 -336 0 700 180 0.7 0 0 1 0.001\n";
-  WriteText(dir / "a.txt", p +
-                               "R_rect: 1 0 0 0 1 0 0 0 1\n"
-                               "Tr_velo_cam: 0 -1 0 0 0 0 -1 0 1 0 0 0\n"
-                               "Tr_imu_velo: 1 0 0 1 0 1 0 0 0 0 1 0\n");
-  WriteText(dir / "b.txt", p +
-                               "R0_rect: 1 0 0 0 1 0 0 0 1\n"
-                               "Tr_velo_to_cam: 0 -1 0 0 0 0 -1 0 1 0 0 0\n"
-                               "Tr_imu_to_velo: 1 0 0 1 0 1 0 0 0 0 1 0\n");
+  WriteText(dir / "a.txt",
+            p + "R_rect: 1 0 0 0 1 0 0 0 1\n"
+                "Tr_velo_cam: 0 -1 0 0 0 0 -1 0 1 0 0 0\n"
+                "Tr_imu_velo: 1 0 0 1 0 1 0 0 0 0 1 0\n");
+  WriteText(dir / "b.txt",
+            p + "R0_rect: 1 0 0 0 1 0 0 0 1\n"
+                "Tr_velo_to_cam: 0 -1 0 0 0 0 -1 0 1 0 0 0\n"
+                "Tr_imu_to_velo: 1 0 0 1 0 1 0 0 0 0 1 0\n");
   for (const char* name : {"a.txt", "b.txt"}) {
     auto c = ReadKittiTrackingCalib(dir / name);
     ASSERT_TRUE(c.ok()) << c.status();
@@ -326,22 +327,27 @@ TEST(Calib, Failures) {
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(std::string(c.status().message()), HasSubstr("c3.txt:1: expected 'KEY: numbers'"));
 
-  WriteText(dir / "c4.txt", "P0: 700 0 600 0 0 700 180 0 0 0 1 0\nP1: 700 0 600 350 0 700 180 0 0 0 1 0\n");
+  WriteText(dir / "c4.txt",
+            "P0: 700 0 600 0 0 700 180 0 0 0 1 0\nP1: 700 0 600 350 0 700 180 0 0 0 1 0\n");
   c = ReadKittiOdometryCalib(dir / "c4.txt");
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(std::string(c.status().message()), HasSubstr("baseline must be positive"));
 
-  WriteText(dir / "c5.txt", "P0: 700 0 600 0 0 700 180 0 0 0 1 0\nP1: 710 0 600 -350 0 700 180 0 0 0 1 0\n");
+  WriteText(dir / "c5.txt",
+            "P0: 700 0 600 0 0 700 180 0 0 0 1 0\nP1: 710 0 600 -350 0 700 180 0 0 0 1 0\n");
   c = ReadKittiOdometryCalib(dir / "c5.txt");
   ASSERT_FALSE(c.ok());
   EXPECT_THAT(std::string(c.status().message()), HasSubstr("not rectified"));
 
-  WriteText(dir / "c6.txt", "P2: 700 0 600 0 0 700 180 0 0 0 1 0\nP3: 700 0 600 -350 0 700 180 0 0 0 1 0\nR_rect: 1 0 0\n");
+  WriteText(dir / "c6.txt",
+            "P2: 700 0 600 0 0 700 180 0 0 0 1 0\nP3: 700 0 600 -350 0 700 180 0 0 0 1 0\nR_rect: "
+            "1 0 0\n");
   auto t = ReadKittiTrackingCalib(dir / "c6.txt");
   ASSERT_FALSE(t.ok());
   EXPECT_THAT(std::string(t.status().message()), HasSubstr("c6.txt: entry R_rect has 3 numbers"));
 
-  WriteText(dir / "c7.txt", "P2: 700 0 600 0 0 700 180 0 0 0 1 0\nP2: 700 0 600 0 0 700 180 0 0 0 1 0\n");
+  WriteText(dir / "c7.txt",
+            "P2: 700 0 600 0 0 700 180 0 0 0 1 0\nP2: 700 0 600 0 0 700 180 0 0 0 1 0\n");
   t = ReadKittiTrackingCalib(dir / "c7.txt");
   ASSERT_FALSE(t.ok());
   EXPECT_THAT(std::string(t.status().message()), HasSubstr("c7.txt:2: duplicate entry P2"));
@@ -350,9 +356,10 @@ TEST(Calib, Failures) {
 // ---------------------------------------------------------------- labels
 TEST(Labels, ParsesAndBuildsBox) {
   ScratchDir dir;
-  WriteText(dir / "l.txt",
-            "0 -1 DontCare -1 -1 -10.000000 356.4 195.8 374.1 216.6 -1000 -1000 -1000 -10 -1 -1 -1\n"
-            "3 7 Car 0 1 -1.5 100 120 300 250 1.5 1.6 4.0 2.0 1.7 10.0 0.0\n");
+  WriteText(
+      dir / "l.txt",
+      "0 -1 DontCare -1 -1 -10.000000 356.4 195.8 374.1 216.6 -1000 -1000 -1000 -10 -1 -1 -1\n"
+      "3 7 Car 0 1 -1.5 100 120 300 250 1.5 1.6 4.0 2.0 1.7 10.0 0.0\n");
   auto labels = ReadKittiLabels(dir / "l.txt");
   ASSERT_TRUE(labels.ok()) << labels.status();
   ASSERT_EQ(labels->size(), 2u);
@@ -386,7 +393,8 @@ TEST(Labels, Failures) {
   auto l = ReadKittiLabels(dir / "a.txt");
   ASSERT_FALSE(l.ok());
   EXPECT_THAT(std::string(l.status().message()), HasSubstr("a.txt:1: expected 17 fields"));
-  WriteText(dir / "b.txt", "0 1 Car 0 0 0 1 2 3 4 1 1 1 0 0 10 0\n0 1 Car 0 0 0 1 2 3 4 1 1 1 0 0 z 0\n");
+  WriteText(dir / "b.txt",
+            "0 1 Car 0 0 0 1 2 3 4 1 1 1 0 0 10 0\n0 1 Car 0 0 0 1 2 3 4 1 1 1 0 0 z 0\n");
   l = ReadKittiLabels(dir / "b.txt");
   ASSERT_FALSE(l.ok());
   EXPECT_THAT(std::string(l.status().message()), HasSubstr("b.txt:2: field 16 'z'"));
@@ -457,7 +465,8 @@ TEST(Images, Failures) {
   // Wrong size.
   absl::Status s = CheckSameSize(gray, dir / "g.png", cv::Size(7, 4), "the left image");
   ASSERT_FALSE(s.ok());
-  EXPECT_THAT(std::string(s.message()), HasSubstr("g.png: wrong size 6x4, differs from the left image 7x4"));
+  EXPECT_THAT(std::string(s.message()),
+              HasSubstr("g.png: wrong size 6x4, differs from the left image 7x4"));
 }
 
 // ---------------------------------------------------------------- JSON

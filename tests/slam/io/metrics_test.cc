@@ -1,13 +1,14 @@
 // Metrics against analytically known answers.
-#include <cmath>
-#include <random>
+#include "slam/io/metrics.h"
 
-#include <Eigen/QR>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <Eigen/QR>
+#include <cmath>
+#include <random>
+
 #include "slam/io/json_writer.h"
-#include "slam/io/metrics.h"
 
 namespace twist::io {
 namespace {
@@ -231,7 +232,8 @@ TEST(ObjectMetrics, ExtraYawRateGivesKnownRotationError) {
     r.track_id = 3;
     r.class_id = 26;
     r.world_from_object =
-        g.world_from_object * SE3d(SO3d::Exp(Eigen::Vector3d(0, alpha * g.frame, 0)), Eigen::Vector3d::Zero());
+        g.world_from_object *
+        SE3d(SO3d::Exp(Eigen::Vector3d(0, alpha * g.frame, 0)), Eigen::Vector3d::Zero());
     r.instance_id = 9;
     est.push_back(r);
   }
@@ -316,7 +318,8 @@ TEST(ObjectMetrics, DuplicateRowsFail) {
   auto e = EvaluateObjects(gt, {}, Stamps(3), ObjectEvalOptions());
   ASSERT_FALSE(e.ok());
   EXPECT_THAT(std::string(e.status().message()), ::testing::HasSubstr("appears twice in frame 0"));
-  e = EvaluateObjects(MovingGt(1, 3, 1.0, Eigen::Vector3d::Zero()), {}, Stamps(2), ObjectEvalOptions());
+  e = EvaluateObjects(
+      MovingGt(1, 3, 1.0, Eigen::Vector3d::Zero()), {}, Stamps(2), ObjectEvalOptions());
   ASSERT_FALSE(e.ok());
   EXPECT_THAT(std::string(e.status().message()), ::testing::HasSubstr("no timestamp"));
 }

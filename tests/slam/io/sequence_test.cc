@@ -1,13 +1,14 @@
 // SequenceReader on small datasets written into a scratch directory, in both
 // layouts, and every failure naming the file and the problem.
-#include <functional>
+#include "slam/io/sequence.h"
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+
+#include <functional>
 #include <opencv2/imgcodecs.hpp>
 
 #include "slam/io/file_util.h"
-#include "slam/io/sequence.h"
 #include "slam/io/trajectory_io.h"
 #include "tests/slam/io/test_util.h"
 
@@ -15,9 +16,9 @@ namespace twist::io {
 namespace {
 
 using geometry::SE3d;
+using ::testing::HasSubstr;
 using testing_util::ScratchDir;
 using testing_util::WriteText;
-using ::testing::HasSubstr;
 
 constexpr int kW = 40;
 constexpr int kH = 24;
@@ -33,7 +34,8 @@ cv::Mat Colour(int i) { return cv::Mat(kH, kW, CV_8UC3, cv::Scalar(10 + i, 20, 3
 
 std::string PosesText(int n) {
   std::vector<SE3d> poses;
-  for (int i = 0; i < n; ++i) poses.push_back(SE3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, 0, i)));
+  for (int i = 0; i < n; ++i)
+    poses.push_back(SE3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, 0, i)));
   return FormatKittiPoses(poses);
 }
 
@@ -184,29 +186,38 @@ TEST(Sequence, OpenFailuresNameTheFile) {
     const char* expected;
   };
   const std::vector<Case> cases = {
-      {"no calib", [](const std::string& d) { std::filesystem::remove(d + "/sequences/05/calib.txt"); },
+      {"no calib",
+       [](const std::string& d) { std::filesystem::remove(d + "/sequences/05/calib.txt"); },
        "sequences/05/calib.txt: no such file"},
-      {"no times", [](const std::string& d) { std::filesystem::remove(d + "/sequences/05/times.txt"); },
+      {"no times",
+       [](const std::string& d) { std::filesystem::remove(d + "/sequences/05/times.txt"); },
        "sequences/05/times.txt: no such file"},
       {"short times",
        [](const std::string& d) { WriteText(d + "/sequences/05/times.txt", "0\n0.1\n"); },
        "times.txt: 2 times for 3 frames (truncated?)"},
-      {"short poses", [](const std::string& d) { WriteText(d + "/poses/05.txt", PosesText(2)); },
+      {"short poses",
+       [](const std::string& d) { WriteText(d + "/poses/05.txt", PosesText(2)); },
        "poses/05.txt: 2 poses for 3 frames"},
       {"bad pose line",
        [](const std::string& d) { WriteText(d + "/poses/05.txt", PosesText(2) + "1 2 3\n"); },
        "poses/05.txt:3: expected 12 numbers"},
       {"missing right",
-       [](const std::string& d) { std::filesystem::remove(d + "/sequences/05/image_1/000001.png"); },
+       [](const std::string& d) {
+         std::filesystem::remove(d + "/sequences/05/image_1/000001.png");
+       },
        "image_1/000001.png: missing right image"},
-      {"gap", [](const std::string& d) { std::filesystem::remove(d + "/sequences/05/image_0/000001.png"); },
+      {"gap",
+       [](const std::string& d) {
+         std::filesystem::remove(d + "/sequences/05/image_0/000001.png");
+       },
        "image_0/000001.png: missing"},
       {"no images",
        [](const std::string& d) { std::filesystem::remove_all(d + "/sequences/05/image_0"); },
        "image_0: no such directory"},
       {"16-bit left",
        [](const std::string& d) {
-         cv::imwrite(d + "/sequences/05/image_0/000000.png", cv::Mat(kH, kW, CV_16UC1, cv::Scalar(1)));
+         cv::imwrite(d + "/sequences/05/image_0/000000.png",
+                     cv::Mat(kH, kW, CV_16UC1, cv::Scalar(1)));
        },
        "image_0/000000.png: wrong bit depth: 16-bit"},
       {"truncated left",
@@ -235,10 +246,14 @@ TEST(Sequence, ReadFrameFailuresNameTheFile) {
   };
   const std::vector<Case> cases = {
       {"right wrong size",
-       [](const std::string& d) { cv::imwrite(d + "/image_03/0003/000001.png", Gray(0, kW + 2, kH)); },
+       [](const std::string& d) {
+         cv::imwrite(d + "/image_03/0003/000001.png", Gray(0, kW + 2, kH));
+       },
        "image_03/0003/000001.png: wrong size 42x24, differs from the left image 40x24"},
       {"left wrong size",
-       [](const std::string& d) { cv::imwrite(d + "/image_02/0003/000001.png", Gray(0, kW, kH - 1)); },
+       [](const std::string& d) {
+         cv::imwrite(d + "/image_02/0003/000001.png", Gray(0, kW, kH - 1));
+       },
        "image_02/0003/000001.png: wrong size 40x23"},
       {"gray right with colour left",
        [](const std::string& d) { cv::imwrite(d + "/image_03/0003/000001.png", Gray(0)); },
@@ -275,24 +290,32 @@ TEST(Sequence, TrackingOpenFailures) {
     const char* expected;
   };
   const std::vector<Case> cases = {
-      {"no calib", [](const std::string& d) { std::filesystem::remove(d + "/calib/0003.txt"); },
+      {"no calib",
+       [](const std::string& d) { std::filesystem::remove(d + "/calib/0003.txt"); },
        "calib/0003.txt: no such file"},
       {"calib without P3",
-       [](const std::string& d) { WriteText(d + "/calib/0003.txt", "P2: 30 0 20 0 0 30 12 0 0 0 1 0\n"); },
+       [](const std::string& d) {
+         WriteText(d + "/calib/0003.txt", "P2: 30 0 20 0 0 30 12 0 0 0 1 0\n");
+       },
        "calib/0003.txt: missing entry P3"},
       {"bad label line",
-       [](const std::string& d) { WriteText(d + "/label_02/0003.txt", "0 4 Car 0 0 0 5 5 14 12 1.5\n"); },
+       [](const std::string& d) {
+         WriteText(d + "/label_02/0003.txt", "0 4 Car 0 0 0 5 5 14 12 1.5\n");
+       },
        "label_02/0003.txt:1: expected 17 fields"},
       {"bad objects_gt",
        [](const std::string& d) { WriteText(d + "/objects_gt/0003.txt", "0 4 26 0 0 10 0 0 0\n"); },
        "objects_gt/0003.txt:1: expected 10 fields"},
       {"objects_gt beyond sequence",
-       [](const std::string& d) { WriteText(d + "/objects_gt/0003.txt", "5 4 26 0 0 10 0 0 0 1\n"); },
+       [](const std::string& d) {
+         WriteText(d + "/objects_gt/0003.txt", "5 4 26 0 0 10 0 0 0 1\n");
+       },
        "objects_gt/0003.txt: frame 5 beyond"},
       {"missing panoptic frame",
        [](const std::string& d) { std::filesystem::remove(d + "/panoptic/0003/000001.png"); },
        "panoptic/0003/000001.png: missing panoptic mask"},
-      {"short times", [](const std::string& d) { WriteText(d + "/times/0003.txt", "0\n"); },
+      {"short times",
+       [](const std::string& d) { WriteText(d + "/times/0003.txt", "0\n"); },
        "times/0003.txt: 1 times for 2 frames"},
   };
   for (const Case& c : cases) {

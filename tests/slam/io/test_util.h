@@ -1,13 +1,12 @@
 // Helpers for the io tests: scratch directories and small files.
 #pragma once
 
+#include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
 #include <string>
-
-#include <gtest/gtest.h>
 
 namespace twist::io::testing_util {
 
