@@ -72,13 +72,14 @@ bool PixelBounds(const CamQuad& q, const geometry::StereoCamera& cam, double nea
   return *x0 <= *x1 && *y0 <= *y1;
 }
 
-// Gaussian-like noise from a hash: sum of three uniforms, unit variance.
+// Gaussian-like noise from one hash: the sum of its four bytes (Irwin-Hall),
+// scaled to unit variance.
 inline float HashNoise(uint32_t seed, uint32_t index) {
-  const uint32_t h1 = procedural::Hash(seed ^ procedural::Hash(index));
-  const uint32_t h2 = procedural::Hash(h1 + 0x9e3779b9U);
-  const uint32_t h3 = procedural::Hash(h2 + 0x9e3779b9U);
-  const float sum = procedural::Unit(h1) + procedural::Unit(h2) + procedural::Unit(h3);
-  return (sum - 1.5f) * 2.0f;  // var of the sum = 3/12
+  const uint32_t h = procedural::Hash(seed ^ (index * 0x9e3779b9U));
+  const int sum = static_cast<int>(h & 0xffU) + static_cast<int>((h >> 8) & 0xffU) +
+                  static_cast<int>((h >> 16) & 0xffU) + static_cast<int>(h >> 24);
+  // Mean 4·127.5, variance 4·(256² − 1)/12.
+  return (static_cast<float>(sum) - 510.0f) * (1.0f / 147.8f);
 }
 
 // Shadow cast by a car onto the ground right below it (ambient occlusion).

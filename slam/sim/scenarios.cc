@@ -562,33 +562,36 @@ void BuildIntersection(Scenario* sc, Builder* b) {
 }
 
 void BuildStationaryThenAccelerating(Scenario* sc, Builder* b) {
+  // Waiting at a crossing: still for 3 s, then 2 m/s² up to 10 m/s.
   sc->camera_motion = CameraMotion(0.0, {{3.0, 0.0, 0.0}, {5.0, 2.0, 0.0}});
   const double t_end = sc->TimeOf(sc->num_frames);
   const double z1 = Travel(sc->camera_motion, t_end) + 200.0;
-  // One-way street with two lanes: the left lane carries overtaking cars.
-  b->Road(-200.0, 200.0, -120.0, z1 + 400.0);
+  // One-way street with two lanes: the left lane carries a dense stream of
+  // cars passing the camera close by (all at the same speed: no collisions).
+  b->Road(-200.0, 200.0, -250.0, z1 + 400.0);
   b->Block(kRoadRight, 80.0, -60.0, z1, kWest);
   b->Block(-80.0, kRoadLeft, -60.0, z1, kEast);
-  b->AddMarking({-1.75, -60.0}, {0, 1}, z1 + 60.0, 0.13, 6.0, 0.5);
-  b->AddMarking({1.75, -60.0}, {0, 1}, z1 + 60.0, 0.15);
-  b->AddMarking({-5.25, -60.0}, {0, 1}, z1 + 60.0, 0.15);
-  b->AddMarking({kRoadLeft, 9.0}, {1, 0}, kRoadRight - kRoadLeft, 3.0, 1.0, 0.5);
-  // Cars passing close on the left, from behind.
-  double start = -12.0;
-  for (int i = 0; i < 7; ++i) {
-    const double speed = b->rng().Uniform(9.0, 13.0);
-    b->AddCar(PlanarMotion(PlanarState{kOncomingLane + b->rng().Uniform(-0.3, 0.1), start, 0.0, speed},
-                           {}, G),
-              i == 2);
-    start -= b->rng().Uniform(14.0, 24.0);
+  b->AddMarking({-1.75, -250.0}, {0, 1}, z1 + 250.0, 0.13, 6.0, 0.5);
+  b->AddMarking({1.75, -250.0}, {0, 1}, z1 + 250.0, 0.15);
+  b->AddMarking({-5.25, -250.0}, {0, 1}, z1 + 250.0, 0.15);
+  b->AddMarking({kRoadLeft, 5.0}, {1, 0}, kRoadRight - kRoadLeft, 3.0, 1.0, 0.5);
+  // The car ahead waits too and starts 0.8 s earlier.
+  b->AddCar(PlanarMotion(PlanarState{0.0, 9.2, 0.0, 0.0}, {{2.2, 0.0, 0.0}, {5.0, 2.0, 0.0}}, G));
+  const double stream_speed = 11.0;
+  double start = 20.0;
+  for (int i = 0; i < 16; ++i) {
+    b->AddCar(PlanarMotion(
+                  PlanarState{kOncomingLane + b->rng().Uniform(-0.3, 0.1), start, 0.0, stream_speed}, {}, G),
+              i % 5 == 2);
+    start -= b->rng().Uniform(11.0, 17.0);
   }
-  // Pedestrians crossing the camera's lane in front of it, on the road; they
-  // stop on the lane divider (clear of both the camera and the left lane).
-  b->AddPedestrian(WalkAndStop(3.4, 9.6, -M_PI / 2.0, 1.5, 5.0, G));
-  b->AddPedestrian(WalkAndStop(4.4, 8.4, -M_PI / 2.0, 1.3, 5.8, G));
-  b->ParkedRow(kParkRight, -30.0, 5.0, 0.0, 0.1, {});
-  b->ParkedRow(kParkRight, 14.0, z1 - 20.0, 0.0, 0.25, {});
-  b->ParkedRow(kParkLeft, 14.0, z1 - 20.0, 0.0, 0.3, {});
+  // Pedestrians cross the camera's lane between the camera and the car
+  // ahead and wait on the lane divider (clear of the camera and the stream).
+  b->AddPedestrian(WalkAndStop(3.4, 4.4, -M_PI / 2.0, 1.5, 5.0, G));
+  b->AddPedestrian(WalkAndStop(4.4, 5.6, -M_PI / 2.0, 1.3, 5.8, G));
+  b->ParkedRow(kParkRight, -30.0, 1.5, 0.0, 0.1, {});
+  b->ParkedRow(kParkRight, 8.0, z1 - 20.0, 0.0, 0.25, {});
+  b->ParkedRow(kParkLeft, 8.0, z1 - 20.0, 0.0, 0.3, {});
   Walkers(b, 5, -5.0, 60.0);
 }
 
