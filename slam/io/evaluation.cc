@@ -39,6 +39,7 @@ absl::StatusOr<RunEvaluation> EvaluateRunDirectory(const SequenceReader& sequenc
   eval.sequence = sequence.sequence();
   eval.est_dir = est_dir;
   eval.num_frames = sequence.size();
+  eval.options = options;
 
   if (sequence.has_gt_poses()) {
     const std::string path = JoinPath(est_dir, "camera.txt");
@@ -79,6 +80,7 @@ absl::StatusOr<RunEvaluation> EvaluateRunDirectory(const SequenceReader& sequenc
     }
     MaskPixelCounts counts;
     const bool use_counts = options.count_mask_pixels && sequence.has_masks();
+    eval.used_mask_pixels = use_counts;
     if (use_counts) {
       for (int64_t i = 0; i < sequence.size(); ++i) {
         absl::StatusOr<cv::Mat> mask = sequence.ReadMask(i);
@@ -188,6 +190,12 @@ std::string RunEvaluationJson(const RunEvaluation& eval) {
     w.Null();
   }
   if (!eval.objects_gt_source.empty()) w.Key("objects_gt_source").String(eval.objects_gt_source);
+  w.Key("options").BeginObject();
+  w.Key("moving_speed_mps").Number(eval.options.objects.moving_speed_mps);
+  w.Key("min_mask_pixels").Int(eval.options.objects.min_mask_pixels);
+  w.Key("max_match_distance_m").Number(eval.options.objects.max_match_distance_m);
+  w.Key("mask_pixels_counted").Bool(eval.used_mask_pixels);
+  w.EndObject();
   w.EndObject();
   return w.str();
 }

@@ -34,6 +34,8 @@ struct RunEvaluation {
   std::optional<ObjectEvaluation> objects;  // absent without object ground truth
   std::string objects_note;
   std::string objects_gt_source;  // "objects_gt" or "label_02 + poses"
+  RunEvalOptions options;         // as used
+  bool used_mask_pixels = false;  // visible coverage computed from the masks
 };
 
 // Ground-truth object poses from KITTI labels and ground-truth camera poses:
