@@ -447,7 +447,9 @@ cv::Mat DrawSpeeds(const Inputs& in, const std::string& title, int max_objects) 
       gt_shown.push_back(id);
     }
   }
-  double t1 = 1.0, v1 = 10.0;
+  // Time axis spans the whole run.
+  double t1 = std::max(1.0, TimeOf(in, static_cast<int64_t>(in.est_camera.size()) - 1));
+  double v1 = 10.0;
   for (int64_t id : est_shown) {
     for (const auto& p : est[id]) t1 = std::max(t1, p.x), v1 = std::max(v1, p.y);
   }
