@@ -480,9 +480,11 @@ absl::StatusOr<StereoFrame> FrameFromProto(const pb::Frame& frame, const FrameFo
         !std::isfinite(b.y_max())) {
       return absl::InvalidArgumentError("a detection box has a non-finite coordinate");
     }
-    if (!(b.x_max() > b.x_min()) || !(b.y_max() > b.y_min())) {
+    // Degenerate (zero-area) boxes happen with truncated labels and are
+    // passed on as they are; only inverted boxes are malformed.
+    if (b.x_max() < b.x_min() || b.y_max() < b.y_min()) {
       return absl::InvalidArgumentError(absl::StrCat("detection box (", b.x_min(), ", ", b.y_min(), ", ",
-                                                     b.x_max(), ", ", b.y_max(), ") is empty or inverted"));
+                                                     b.x_max(), ", ", b.y_max(), ") is inverted (max < min)"));
     }
     DetectionBox box;
     box.class_id = b.class_id();

@@ -161,6 +161,15 @@ inline pb::Frame ToWire(const StereoFrame& f, pb::ImageEncoding encoding = pb::I
   images.panoptic = f.panoptic;
   pb::Frame frame;
   EXPECT_TRUE(client::MakeFrame(images, encoding, &frame).ok());
+  for (const DetectionBox& b : f.boxes) {
+    pb::DetectionBox* box = frame.add_boxes();
+    box->set_class_id(b.class_id);
+    box->set_instance_id(b.instance_id);
+    box->set_x_min(b.x_min);
+    box->set_y_min(b.y_min);
+    box->set_x_max(b.x_max);
+    box->set_y_max(b.y_max);
+  }
   return frame;
 }
 

@@ -142,7 +142,7 @@ TEST(Convert, FlowAndBoxes) {
   EXPECT_EQ(f->boxes[0].x_max, 10);
 
   box->set_x_max(0);
-  EXPECT_THAT(std::string(FrameFromProto(frame, Format()).status().message()), HasSubstr("empty or inverted"));
+  EXPECT_THAT(std::string(FrameFromProto(frame, Format()).status().message()), HasSubstr("is inverted"));
   box->set_x_max(10);
   FrameFormat no_flow = Format();
   no_flow.allow_flow = false;

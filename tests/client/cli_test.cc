@@ -1,0 +1,197 @@
+// The installed executables as a user runs them: twistslam-server (first
+// stdout line, SIGTERM) and `twistslam run` over it and embedded (same
+// camera poses, every output file), `twistslam map`, and one-line errors.
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "slam/sim/scenarios.h"
+#include "slam/sim/writer.h"
+
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::HasSubstr;
+
+std::string ReadAll(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+// Runs a shell command; returns its exit code and stderr.
+int Shell(const std::string& command, std::string* err = nullptr) {
+  const std::string err_file = ::testing::TempDir() + "/twist_cli_stderr.txt";
+  const int rc = std::system((command + " 2>" + err_file).c_str());
+  if (err) *err = ReadAll(err_file);
+  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+}
+
+class Server {
+ public:
+  explicit Server(const std::vector<std::string>& extra) {
+    int out[2];
+    EXPECT_EQ(pipe(out), 0);
+    pid_ = fork();
+    if (pid_ == 0) {
+      dup2(out[1], 1);
+      close(out[0]);
+      const int devnull = open("/dev/null", O_WRONLY);
+      dup2(devnull, 2);
+      std::vector<std::string> args = {TWISTSLAM_SERVER_BIN, "--listen", "127.0.0.1:0"};
+      args.insert(args.end(), extra.begin(), extra.end());
+      std::vector<char*> argv;
+      for (auto& a : args) argv.push_back(a.data());
+      argv.push_back(nullptr);
+      execv(argv[0], argv.data());
+      _exit(127);
+    }
+    close(out[1]);
+    FILE* f = fdopen(out[0], "r");
+    char line[256] = {0};
+    if (fgets(line, sizeof(line), f) != nullptr) first_line_ = line;
+    fclose(f);
+  }
+  ~Server() {
+    if (pid_ > 0) Stop();
+  }
+  // SIGTERM, then wait (bounded) for a clean exit; returns the exit code.
+  int Stop() {
+    kill(pid_, SIGTERM);
+    int status = 0;
+    for (int i = 0; i < 600; ++i) {  // up to 60 s: a liveness bound, not a timing
+      if (waitpid(pid_, &status, WNOHANG) == pid_) {
+        pid_ = -1;
+        return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+      }
+      usleep(100000);
+    }
+    kill(pid_, SIGKILL);
+    waitpid(pid_, &status, 0);
+    pid_ = -1;
+    return -2;
+  }
+  const std::string& first_line() const { return first_line_; }
+  std::string address() const {
+    const std::string prefix = "listening on ";
+    if (first_line_.rfind(prefix, 0) != 0) return "";
+    std::string a = first_line_.substr(prefix.size());
+    while (!a.empty() && (a.back() == '\n' || a.back() == '\r')) a.pop_back();
+    return a;
+  }
+
+ private:
+  pid_t pid_ = -1;
+  std::string first_line_;
+};
+
+std::string MakeDataset() {
+  const std::string dir = ::testing::TempDir() + "/twist_cli_dataset";
+  if (fs::exists(dir + "/image_02/0000")) return dir;
+  absl::StatusOr<twist::sim::Scenario> scenario = twist::sim::MakeScenario("driving", 5, 6);
+  EXPECT_TRUE(scenario.ok());
+  auto& cam = scenario->camera;
+  cam.fx *= 0.4;
+  cam.fy *= 0.4;
+  cam.cx *= 0.4;
+  cam.cy *= 0.4;
+  cam.width = static_cast<int>(cam.width * 0.4);
+  cam.height = static_cast<int>(cam.height * 0.4);
+  twist::sim::WriteOptions options;
+  options.render.gray = true;
+  EXPECT_TRUE(twist::sim::WriteSequence(*scenario, dir, options).ok());
+  return dir;
+}
+
+TEST(Cli, ServerRunAndMapEndToEnd) {
+  const std::string dataset = MakeDataset();
+  const std::string state = ::testing::TempDir() + "/twist_cli_state";
+  fs::remove_all(state);
+  Server server({"--state-dir", state});
+  ASSERT_THAT(server.first_line(), ::testing::MatchesRegex("listening on 127\\.0\\.0\\.1:[0-9]+\n"));
+  const std::string out_remote = ::testing::TempDir() + "/twist_cli_remote";
+  const std::string out_local = ::testing::TempDir() + "/twist_cli_local";
+  fs::remove_all(out_remote);
+  fs::remove_all(out_local);
+  const std::string common = std::string(TWISTSLAM_BIN) + " run --dataset " + dataset +
+                             " --format kitti-tracking --seq 0000 ";
+  std::string err;
+  ASSERT_EQ(Shell(common + "--out " + out_remote + " --server " + server.address() + " --keep-session > " +
+                    ::testing::TempDir() + "/twist_cli_stdout.txt",
+                &err),
+            0)
+      << err;
+  EXPECT_THAT(err, HasSubstr("frames/s"));
+  ASSERT_EQ(Shell(common + "--out " + out_local + " --embedded", &err), 0) << err;
+  for (const char* file : {"camera.txt", "camera_tum.txt", "objects.txt", "summary.json", "updates.jsonl", "map.ply"}) {
+    EXPECT_TRUE(fs::exists(out_remote + "/" + file)) << file;
+    EXPECT_TRUE(fs::exists(out_local + "/" + file)) << file;
+  }
+  // The server and the embedded engine give the same trajectory.
+  EXPECT_EQ(ReadAll(out_remote + "/camera.txt"), ReadAll(out_local + "/camera.txt"));
+  EXPECT_EQ(ReadAll(out_remote + "/objects.txt"), ReadAll(out_local + "/objects.txt"));
+  const std::string updates = ReadAll(out_remote + "/updates.jsonl");
+  EXPECT_EQ(std::count(updates.begin(), updates.end(), '\n'), 6);
+  EXPECT_THAT(ReadAll(out_remote + "/summary.json"), HasSubstr("\"mode\": \"server"));
+
+  // `twistslam map` on the kept session.
+  std::istringstream kept(ReadAll(::testing::TempDir() + "/twist_cli_stdout.txt"));
+  std::string word, session;
+  kept >> word >> session;
+  ASSERT_EQ(word, "session");
+  const std::string ply = ::testing::TempDir() + "/twist_cli_map.ply";
+  ASSERT_EQ(Shell(std::string(TWISTSLAM_BIN) + " map --server " + server.address() + " --session " + session +
+                    " --out " + ply,
+                &err),
+            0)
+      << err;
+  EXPECT_THAT(ReadAll(ply), HasSubstr("end_header"));
+  EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) + " map --server " + server.address() + " --session nope --out " + ply +
+                    ".2",
+                &err),
+            1);
+  EXPECT_THAT(err, HasSubstr("not found"));
+  EXPECT_FALSE(fs::exists(ply + ".2"));
+
+  EXPECT_EQ(server.Stop(), 0);
+  // Shutdown persisted the kept session.
+  EXPECT_TRUE(fs::exists(state + "/" + session + "/CURRENT"));
+  fs::remove_all(state);
+}
+
+TEST(Cli, BadArgumentsAndInputsFailWithOneLine) {
+  std::string err;
+  EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) + " run --dataset /x --format kitti-odometry --seq 00 --out /tmp/x", &err), 2);
+  EXPECT_THAT(err, HasSubstr("exactly one of --server"));
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1);
+  const std::string out = ::testing::TempDir() + "/twist_cli_missing";
+  fs::remove_all(out);
+  EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) + " run --dataset /nonexistent --format kitti-odometry --seq 00 --out " +
+                    out + " --embedded",
+                &err),
+            1);
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1);
+  EXPECT_FALSE(fs::exists(out + "/summary.json"));
+  // No server there: a clear failure, no outputs.
+  EXPECT_NE(Shell(std::string(TWISTSLAM_BIN) + " run --dataset " + MakeDataset() +
+                    " --format kitti-tracking --seq 0000 --out " + out + " --server 127.0.0.1:1 --token-file /nope",
+                &err),
+            0);
+  EXPECT_THAT(err, HasSubstr("token file"));
+  EXPECT_EQ(Shell(std::string(TWISTSLAM_SERVER_BIN) + " --bogus 1", &err), 2);
+  EXPECT_THAT(err, HasSubstr("unknown flag --bogus"));
+  EXPECT_EQ(Shell(std::string(TWISTSLAM_SERVER_BIN) + " --auth-token-file /nonexistent", &err), 1);
+  EXPECT_THAT(err, HasSubstr("token file"));
+}
+
+}  // namespace
