@@ -1,6 +1,7 @@
 #include "slam/sim/scenarios.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <utility>
 
@@ -453,16 +454,27 @@ void StraightStreet(Builder* b, double z0, double z1, std::vector<Interval> no_b
   b->AddMarking({-5.25, z0}, {0, 1}, z1 - z0, 0.15);
 }
 
-// Pedestrians walking along the sidewalks between z0 and z1.
+// Pedestrians walking along the sidewalks between z0 and z1: four walking
+// lines (two per side, one per direction), one speed per line and at least
+// 2 m between walkers of a line, so nobody walks into anybody.
 void Walkers(Builder* b, int count, double z0, double z1) {
+  const std::array<double, 4> line_x = {5.4, 6.3, -9.0, -9.9};
+  const std::array<double, 4> line_yaw = {0.0, M_PI, 0.0, M_PI};
+  std::array<double, 4> line_speed;
+  for (double& v : line_speed) v = b->rng().Uniform(1.0, 1.6);
+  std::array<std::vector<double>, 4> taken;
   for (int i = 0; i < count; ++i) {
-    const bool right = b->rng().Chance(0.5);
-    const bool forward = b->rng().Chance(0.5);
-    const double x = right ? (forward ? 5.4 : 6.3) : (forward ? -9.0 : -9.9);
-    const double speed = b->rng().Uniform(1.0, 1.6);
-    const double z = b->rng().Uniform(z0, z1);
-    PlanarState s{x, z, forward ? 0.0 : M_PI, speed};
-    b->AddPedestrian(PlanarMotion(s, {}, G - kCurbHeight));
+    const int line = static_cast<int>(b->rng().Uniform(0.0, 4.0 - 1e-9));
+    for (int attempt = 0; attempt < 20; ++attempt) {
+      const double z = b->rng().Uniform(z0, z1);
+      bool free = true;
+      for (double other : taken[line]) free = free && std::abs(other - z) >= 2.0;
+      if (!free) continue;
+      taken[line].push_back(z);
+      PlanarState s{line_x[line], z, line_yaw[line], line_speed[line]};
+      b->AddPedestrian(PlanarMotion(s, {}, G - kCurbHeight));
+      break;
+    }
   }
 }
 
@@ -496,10 +508,10 @@ void BuildDriving(Scenario* sc, Builder* b) {
   b->AddCar(PlanarMotion(PlanarState{0.0, 18.0, 0.0, 10.0},
                          {{3.0, 0.5, 0.0}, {3.0, -0.8, 0.0}, {4.0, 0.0, 0.0}, {4.0, 0.3, 0.0}}, G));
   b->AddCar(PlanarMotion(PlanarState{0.1, 48.0, 0.0, 11.0}, {{5.0, 0.0, 0.0}, {5.0, -0.1, 0.0}}, G));
-  // Oncoming traffic, spaced along the street.
+  // Oncoming traffic, spaced along the street, all at one speed.
   double z = 45.0;
+  const double speed = b->rng().Uniform(8.0, 12.0);
   while (z < 10.0 * t_end + 150.0 && z < z1) {
-    const double speed = b->rng().Uniform(8.0, 12.0);
     b->AddCar(PlanarMotion(PlanarState{kOncomingLane + b->rng().Uniform(-0.2, 0.2), z, M_PI, speed},
                            {}, G),
               b->rng().Chance(0.15));
