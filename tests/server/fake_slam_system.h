@@ -17,6 +17,7 @@
 #include <opencv2/core.hpp>
 
 #include "absl/strings/str_cat.h"
+#include "absl/synchronization/notification.h"
 #include "server/session.h"
 #include "slam/system/slam_system.h"
 
@@ -24,7 +25,8 @@ namespace twist::testing {
 
 class FakeSlamSystem : public SlamSystem {
  public:
-  FakeSlamSystem(const SessionConfig& config, int delay_ms) : config_(config), delay_ms_(delay_ms) {}
+  FakeSlamSystem(const SessionConfig& config, int delay_ms, std::shared_ptr<absl::Notification> gate = nullptr)
+      : config_(config), delay_ms_(delay_ms), gate_(std::move(gate)) {}
 
   absl::StatusOr<FrameResult> Process(const StereoFrame& frame) override {
     if (shut_down_) return absl::FailedPreconditionError("shut down");
@@ -38,6 +40,7 @@ class FakeSlamSystem : public SlamSystem {
     }
     if (frames_ > 0 && frame.timestamp_ns <= last_ts_) return absl::InvalidArgumentError("timestamp not increasing");
     if (delay_ms_ > 0) std::this_thread::sleep_for(std::chrono::milliseconds(delay_ms_));
+    if (gate_) gate_->WaitForNotification();  // a stalled engine until released
     // The pose integrates the image content, so a reordered, dropped or
     // duplicated frame changes every later pose.
     const double mean = cv::mean(frame.left)[0] + 0.5 * cv::mean(frame.right)[0];
@@ -146,17 +149,18 @@ class FakeSlamSystem : public SlamSystem {
  private:
   SessionConfig config_;
   int delay_ms_ = 0;
+  std::shared_ptr<absl::Notification> gate_;
   int64_t frames_ = 0;
   int64_t last_ts_ = 0;
   double z_ = 0, yaw_ = 0;
   std::atomic<bool> shut_down_{false};
 };
 
-inline server::SlamSystemFactory FakeFactory(int delay_ms = 0) {
+inline server::SlamSystemFactory FakeFactory(int delay_ms = 0, std::shared_ptr<absl::Notification> gate = nullptr) {
   server::SlamSystemFactory f;
-  f.create = [delay_ms](const SessionConfig& config) -> absl::StatusOr<std::unique_ptr<SlamSystem>> {
+  f.create = [delay_ms, gate](const SessionConfig& config) -> absl::StatusOr<std::unique_ptr<SlamSystem>> {
     if (!(config.camera.fx > 0)) return absl::InvalidArgumentError("bad camera");
-    return std::unique_ptr<SlamSystem>(std::make_unique<FakeSlamSystem>(config, delay_ms));
+    return std::unique_ptr<SlamSystem>(std::make_unique<FakeSlamSystem>(config, delay_ms, gate));
   };
   f.load = [](const std::string& path) { return FakeSlamSystem::Load(path); };
   return f;

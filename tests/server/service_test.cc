@@ -610,3 +610,60 @@ TEST(Service, TlsServesOnlyTlsClients) {
 
 }  // namespace
 }  // namespace twist::server
+
+namespace twist::server {
+namespace {
+
+// A stalled engine (and a client that writes as fast as it can and never
+// reads): the queue fills, the reader stops reading, and HTTP/2 flow control
+// blocks the client's writes. Memory stays bounded: the session's queue never
+// exceeds its capacity and the client cannot push the whole (~900 MB)
+// sequence into the server.
+TEST(Service, StalledEngineBackPressuresTheClient) {
+  auto gate = std::make_shared<absl::Notification>();
+  absl::StatusOr<std::unique_ptr<TwistServer>> started = TwistServer::Start(TestOptions(), FakeFactory(0, gate));
+  ASSERT_TRUE(started.ok());
+  auto server = std::move(*started);
+  auto client = Connect(server->address());
+  constexpr int kBigW = 1600, kBigH = 1400;  // 4.5 MB per raw frame
+  pb::CreateSessionRequest request = MakeCreateRequest(kBigW, kBigH, 1000);
+  request.mutable_policy()->set_queue_capacity(2);
+  auto created = client->CreateSession(request);
+  ASSERT_TRUE(created.ok());
+  grpc::ClientContext context;
+  auto stream = client->stub()->Stream(&context);
+  pb::StreamRequest bind;
+  bind.mutable_bind()->set_session_id(created->session_id());
+  ASSERT_TRUE(stream->Write(bind));
+  pb::StreamRequest frame;
+  *frame.mutable_frame() = MakeTestFrame(0, kBigW, kBigH);
+  constexpr int kFrames = 200;
+  std::atomic<int> written{0};
+  std::thread writer([&] {
+    for (int i = 0; i < kFrames; ++i) {
+      frame.mutable_frame()->set_index(i);
+      frame.mutable_frame()->set_timestamp_ns(1'000'000'000LL + i * 1'000'000LL);
+      if (!stream->Write(frame)) return;
+      ++written;
+    }
+  });
+  // Wait (bounded) until the writer stops making progress.
+  int last = -1;
+  for (int i = 0; i < 300 && written != last; ++i) {
+    last = written;
+    absl::SleepFor(absl::Milliseconds(300));
+  }
+  EXPECT_LT(written.load(), kFrames);
+  int max_depth = 0;
+  absl::StatusOr<std::vector<pb::SessionInfo>> sessions = client->ListSessions();
+  ASSERT_TRUE(sessions.ok());
+  for (const pb::SessionInfo& s : *sessions) max_depth = std::max(max_depth, s.queue_depth());
+  EXPECT_LE(max_depth, 2);
+  gate->Notify();
+  context.TryCancel();
+  writer.join();
+  stream->Finish();
+}
+
+}  // namespace
+}  // namespace twist::server
