@@ -84,6 +84,22 @@ cv::Mat TexturedPatch(const cv::Mat& image, const Eigen::Vector2d& uv, int half_
   return stddev[0] >= 2.0 ? patch : cv::Mat();
 }
 
+// New points must sit well inside the mask: keypoints on the boundary
+// describe the background as much as the object.
+bool DeepInsideDetection(const ObjectDetectionInput& det,
+                         const Eigen::Vector2d& uv,
+                         double erosion) {
+  if (!InsideDetection(det, uv)) return false;
+  if (det.mask.empty() || erosion <= 0.0) return true;
+  for (const Eigen::Vector2d& d : {Eigen::Vector2d(erosion, 0),
+                                   Eigen::Vector2d(-erosion, 0),
+                                   Eigen::Vector2d(0, erosion),
+                                   Eigen::Vector2d(0, -erosion)}) {
+    if (!InsideDetection(det, uv + d)) return false;
+  }
+  return true;
+}
+
 double Median(std::vector<double> v) {
   if (v.empty()) return 0.0;
   std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
@@ -183,7 +199,8 @@ void ObjectTracker::AddNewPoints(const FrameContext& ctx,
   const double spacing2 = options_.min_point_spacing_px * options_.min_point_spacing_px;
   for (size_t k = 0; k < kps.uv.size(); ++k) {
     if (static_cast<int>(o->points.size()) >= options_.max_points_per_object) break;
-    if (kps.u_right[k] < 0.0 || !InsideDetection(det, kps.uv[k])) continue;
+    if (kps.u_right[k] < 0.0 || !DeepInsideDetection(det, kps.uv[k], options_.mask_erosion_px))
+      continue;
     bool close = false;
     for (const auto& t : taken) {
       if ((t - kps.uv[k]).squaredNorm() < spacing2) {
@@ -218,7 +235,8 @@ bool ObjectTracker::Create(const FrameContext& ctx,
   std::vector<size_t> idx;
   std::vector<Eigen::Vector3d> p_cam;
   for (size_t k = 0; k < kps.uv.size(); ++k) {
-    if (kps.u_right[k] < 0.0 || !InsideDetection(det, kps.uv[k])) continue;
+    if (kps.u_right[k] < 0.0 || !DeepInsideDetection(det, kps.uv[k], options_.mask_erosion_px))
+      continue;
     const auto p_c = camera_.TriangulateStereo(
         kps.uv[k].x(), kps.uv[k].y(), kps.u_right[k], options_.max_depth_m);
     if (!p_c) continue;

@@ -127,6 +127,7 @@ struct ObjectTrackerOptions {
   double max_depth_m = 60.0;        // triangulated points further away are dropped
   double max_depth_spread_m = 4.0;  // around the object's median depth
   double min_point_spacing_px = 3.0;
+  double mask_erosion_px = 2.0;   // new points at least this far inside the mask
   double stereo_lookup_px = 1.5;  // flow position -> stereo keypoint
   int max_frames_lost = 10;       // re-identification window, then removed
   double reid_min_score = 0.3;
