@@ -43,6 +43,19 @@ long CurrentRssKb() {
   return 0;
 }
 
+double ProcessCpuMs() {
+  struct rusage ru;
+  getrusage(RUSAGE_SELF, &ru);
+  return (ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) * 1e3 + (ru.ru_utime.tv_usec + ru.ru_stime.tv_usec) * 1e-3;
+}
+
+double LoadAverage() {
+  std::ifstream in("/proc/loadavg");
+  double l = 0;
+  in >> l;
+  return l;
+}
+
 long PeakRssKb() {
   struct rusage ru;
   getrusage(RUSAGE_SELF, &ru);
@@ -54,6 +67,8 @@ struct RunResult {
   std::map<std::string, std::vector<double>> stages;  // per frame where present
   std::vector<double> frame_latency_ms;               // Process() wall time
   double wall_s = 0.0;
+  double cpu_ms_per_frame = 0.0;  // all threads of the process
+  double load_average = 0.0;
   double fps = 0.0;
   int lost = 0;
   int keyframes = 0;
@@ -74,6 +89,7 @@ RunResult RunOnce(const twist::SessionConfig& config,
     std::exit(2);
   }
   std::vector<twist::geometry::SE3d> est;
+  const double cpu0 = ProcessCpuMs();
   twist::Stopwatch total;
   for (const StereoFrame& f : frames) {
     twist::Stopwatch sw;
@@ -96,8 +112,10 @@ RunResult RunOnce(const twist::SessionConfig& config,
     r.keyframes = res->num_keyframes;
     r.map_points = res->num_map_points;
   }
+  (*sys)->Shutdown();  // joins the mapping thread: its work is counted
   r.wall_s = total.ElapsedMs() / 1000.0;
-  (*sys)->Shutdown();
+  r.cpu_ms_per_frame = (ProcessCpuMs() - cpu0) / frames.size();
+  r.load_average = LoadAverage();
   r.fps = frames.size() / r.wall_s;
   r.rss_after_kb = CurrentRssKb();
   if (!gt.empty()) {
@@ -186,11 +204,14 @@ int main(int argc, char** argv) {
     std::printf("\n[%s] %.2f frames/s end-to-end (%.2f s), lost %d, keyframes %d, points %d\n", r.mode.c_str(),
                 r.fps, r.wall_s, r.lost, r.keyframes, r.map_points);
     std::printf("  RPE_t %.4f m/frame  RPE_R %.4f deg/frame  ATE %.4f m\n", r.rpe_t, r.rpe_r, r.ate);
+    std::printf("  CPU %.1f ms/frame (all threads), machine load average %.1f\n", r.cpu_ms_per_frame,
+                r.load_average);
     std::printf("  %-18s %8s %8s %6s\n", "stage (ms)", "median", "p95", "n");
     json << (k ? ", " : "") << "{\"mode\": \"" << r.mode << "\", \"fps\": " << r.fps
          << ", \"wall_s\": " << r.wall_s << ", \"lost\": " << r.lost << ", \"keyframes\": " << r.keyframes
          << ", \"map_points\": " << r.map_points << ", \"rpe_t\": " << r.rpe_t << ", \"rpe_r_deg\": " << r.rpe_r
-         << ", \"ate\": " << r.ate << ", \"rss_growth_mb\": " << (r.rss_after_kb - r.rss_before_kb) / 1024.0
+         << ", \"ate\": " << r.ate << ", \"cpu_ms_per_frame\": " << r.cpu_ms_per_frame
+         << ", \"load_average\": " << r.load_average << ", \"rss_growth_mb\": " << (r.rss_after_kb - r.rss_before_kb) / 1024.0
          << ", \"rss_per_keyframe_kb\": "
          << (r.keyframes ? static_cast<double>(r.rss_after_kb - r.rss_before_kb) / r.keyframes : 0.0)
          << ", \"stages\": {";

@@ -378,9 +378,14 @@ void OrbExtractor::Extract(const cv::Mat& image,
     if (per_level[l].empty()) continue;
     cv::GaussianBlur(levels[l], blurred, cv::Size(7, 7), 2, 2, cv::BORDER_REFLECT_101);
     ComputeDescriptors(blurred, per_level[l], descriptors->ptr<uint8_t>(row));
-    const float s = pyramid_.scale[l];
+    // Level -> level-0 pixels. cv::resize maps pixel centres, so
+    // x0 = (x_l + 0.5) * W0 / W_l - 0.5 (not x_l * scale, which shifts
+    // high-level keypoints by up to ~1.3 px towards the image origin).
+    const float sx = static_cast<float>(image.cols) / static_cast<float>(levels[l].cols);
+    const float sy = static_cast<float>(image.rows) / static_cast<float>(levels[l].rows);
     for (cv::KeyPoint kp : per_level[l]) {
-      kp.pt *= s;
+      kp.pt.x = (kp.pt.x + 0.5f) * sx - 0.5f;
+      kp.pt.y = (kp.pt.y + 0.5f) * sy - 0.5f;
       keypoints->push_back(kp);
     }
     row += static_cast<int>(per_level[l].size());

@@ -65,13 +65,14 @@ StereoMatchResult MatchStereo(const geometry::StereoCamera& camera,
 
     // SAD refinement on the left keypoint's level.
     const int level = kl.octave;
-    const float inv_s = pyramid.inv_scale[level];
     const cv::Mat& il = left_levels[level];
     const cv::Mat& ir = right_levels[level];
-    const int su = cvRound(ul * inv_s);
-    const int sv = cvRound(kl.pt.y * inv_s);
-    const float scaled_ur = right_kps[best_j].pt.x * inv_s;
-    const int sur = cvRound(scaled_ur);
+    // Level-0 <-> level pixel centres (see OrbExtractor::Extract).
+    const float sx = static_cast<float>(left_levels[0].cols) / static_cast<float>(il.cols);
+    const float sy = static_cast<float>(left_levels[0].rows) / static_cast<float>(il.rows);
+    const int su = cvRound((ul + 0.5f) / sx - 0.5f);
+    const int sv = cvRound((kl.pt.y + 0.5f) / sy - 0.5f);
+    const int sur = cvRound((right_kps[best_j].pt.x + 0.5f) / sx - 0.5f);
     if (sv - w < 0 || sv + w >= il.rows || su - w < 0 || su + w >= il.cols) continue;
     if (sur - L - w < 0 || sur + L + w >= ir.cols) continue;
     const int center_l = il.at<uint8_t>(sv, su);
@@ -102,7 +103,7 @@ StereoMatchResult MatchStereo(const geometry::StereoCamera& camera,
     if (denom <= 0.f) continue;
     const float delta = (d1 - d3) / denom;
     if (delta < -1.f || delta > 1.f) continue;
-    const float ur = pyramid.scale[level] * (static_cast<float>(sur + best_inc) + delta);
+    const float ur = (static_cast<float>(sur + best_inc) + delta + 0.5f) * sx - 0.5f;
     float disparity = ul - ur;
     if (disparity < 0.f || disparity >= max_disparity) continue;
     if (disparity <= 0.f) disparity = 0.01f;

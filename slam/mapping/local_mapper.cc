@@ -202,11 +202,19 @@ int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1, map::Map* map) {
       const Eigen::Vector3d c1_in_2 = T2 * C1;
       if (c1_in_2.z() > 1e-6) epipole = camera_.Project(c1_in_2);
     }
+    // Unmatched static keypoints of kf2 in flat arrays (the epipolar test
+    // runs over all of them for every keypoint of kf1).
     std::vector<int> cand2;
+    std::vector<float> xs2, ys2, th2;
     for (int j = 0; j < f2.size(); ++j) {
-      if (kf2->point_ids[j] < 0 && f2.is_static[j]) cand2.push_back(j);
+      if (kf2->point_ids[j] >= 0 || !f2.is_static[j]) continue;
+      cand2.push_back(j);
+      xs2.push_back(f2.keypoints[j].pt.x);
+      ys2.push_back(f2.keypoints[j].pt.y);
+      th2.push_back(3.84f * pyramid_.sigma2[f2.keypoints[j].octave]);
     }
-    std::vector<char> taken2(f2.size(), 0);
+    const int n2 = static_cast<int>(cand2.size());
+    std::vector<char> taken2(n2, 0);
     std::vector<std::pair<int, int>> matches;
     features::OrientationFilter rot;
     for (int i = 0; i < f1.size(); ++i) {
@@ -216,23 +224,26 @@ int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1, map::Map* map) {
       const Eigen::Vector3d line = F21 * Eigen::Vector3d(k1.pt.x, k1.pt.y, 1.0);
       const double norm2 = line.x() * line.x() + line.y() * line.y();
       if (norm2 < 1e-20) continue;
-      int best = features::kThresholdLow + 1, best_j = -1;
-      for (int j : cand2) {
-        if (taken2[j]) continue;
-        const cv::KeyPoint& k2 = f2.keypoints[j];
-        const double num = line.x() * k2.pt.x + line.y() * k2.pt.y + line.z();
-        if (num * num / norm2 >= 3.84 * pyramid_.sigma2[k2.octave]) continue;
+      const float la = static_cast<float>(line.x() / std::sqrt(norm2));
+      const float lb = static_cast<float>(line.y() / std::sqrt(norm2));
+      const float lc = static_cast<float>(line.z() / std::sqrt(norm2));
+      int best = features::kThresholdLow + 1, best_c = -1;
+      for (int c = 0; c < n2; ++c) {
+        const float num = la * xs2[c] + lb * ys2[c] + lc;
+        if (num * num >= th2[c] || taken2[c]) continue;
+        const int j = cand2[c];
         const int d = features::DescriptorDistance(f1.descriptor(i), f2.descriptor(j));
         if (d >= best) continue;
         if (!stereo1 && f2.u_right[j] < 0.f) {
-          const double ex = epipole.x() - k2.pt.x, ey = epipole.y() - k2.pt.y;
-          if (ex * ex + ey * ey < 100.0 * pyramid_.scale[k2.octave]) continue;
+          const double ex = epipole.x() - xs2[c], ey = epipole.y() - ys2[c];
+          if (ex * ex + ey * ey < 100.0 * pyramid_.scale[f2.keypoints[j].octave]) continue;
         }
         best = d;
-        best_j = j;
+        best_c = c;
       }
+      const int best_j = best_c < 0 ? -1 : cand2[best_c];
       if (best_j < 0) continue;
-      taken2[best_j] = 1;
+      taken2[best_c] = 1;
       rot.Add(k1.angle, f2.keypoints[best_j].angle, static_cast<int>(matches.size()));
       matches.push_back({i, best_j});
     }
