@@ -71,12 +71,13 @@ int main(int argc, char** argv) {
     const twist::sim::Renderer renderer(sc->camera, options);
     std::vector<double> render_ms, label_ms, total_ms, orb, dynamic_share;
     cv::Ptr<cv::ORB> detector = cv::ORB::create(5000);
+    twist::sim::RenderScratch scratch;
+    twist::sim::StereoRender r;
     for (int i = 0; i < frames; ++i) {
       twist::sim::Exposure left, right;
       twist::sim::FrameExposures(*sc, i, &left, &right);
       twist::Stopwatch watch;
-      const twist::sim::StereoRender r =
-          renderer.RenderStereo(sc->scene, sc->TimeOf(i), sc->WorldFromCamera(i), left, right);
+      renderer.RenderStereo(sc->scene, sc->TimeOf(i), sc->WorldFromCamera(i), left, right, &scratch, &r);
       render_ms.push_back(watch.ElapsedMs());
       twist::Stopwatch label_watch;
       const auto labels = twist::sim::ComputeFrameLabels(*sc, renderer, i, r.panoptic);

@@ -154,13 +154,20 @@ std::vector<Quad> Renderer::QuadsAt(const Scene& scene, double t) {
 
 ViewBuffers Renderer::Rasterize(const std::vector<Quad>& quads,
                                 const geometry::SE3d& world_from_camera) const {
-  const int w = camera_.width, h = camera_.height;
   ViewBuffers out;
-  out.depth = cv::Mat(h, w, CV_32FC1, cv::Scalar(std::numeric_limits<float>::infinity()));
-  out.quad = cv::Mat(h, w, CV_32SC1, cv::Scalar(-1));
-  RasterizeRegion(quads, world_from_camera, camera_, options_.near_clip, cv::Rect(0, 0, w, h),
-                  out.depth.ptr<float>(), out.quad.ptr<int32_t>());
+  Rasterize(quads, world_from_camera, &out);
   return out;
+}
+
+void Renderer::Rasterize(const std::vector<Quad>& quads, const geometry::SE3d& world_from_camera,
+                         ViewBuffers* out) const {
+  const int w = camera_.width, h = camera_.height;
+  out->depth.create(h, w, CV_32FC1);
+  out->depth.setTo(cv::Scalar(std::numeric_limits<float>::infinity()));
+  out->quad.create(h, w, CV_32SC1);
+  out->quad.setTo(cv::Scalar(-1));
+  RasterizeRegion(quads, world_from_camera, camera_, options_.near_clip, cv::Rect(0, 0, w, h),
+                  out->depth.ptr<float>(), out->quad.ptr<int32_t>());
 }
 
 int64_t Renderer::CountCoverage(const std::vector<Quad>& quads,
@@ -189,6 +196,14 @@ int64_t Renderer::CountCoverage(const std::vector<Quad>& quads,
 cv::Mat Renderer::Shade(const Scene& scene, double t, const std::vector<Quad>& quads,
                         const geometry::SE3d& world_from_camera, const ViewBuffers& buffers,
                         const Exposure& exposure) const {
+  cv::Mat linear, out;
+  Shade(scene, t, quads, world_from_camera, buffers, exposure, &linear, &out);
+  return out;
+}
+
+void Renderer::Shade(const Scene& scene, double t, const std::vector<Quad>& quads,
+                     const geometry::SE3d& world_from_camera, const ViewBuffers& buffers,
+                     const Exposure& exposure, cv::Mat* linear_buffer, cv::Mat* image) const {
   const int w = camera_.width, h = camera_.height;
   const geometry::SE3d camera_from_world = world_from_camera.Inverse();
   const Eigen::Matrix3d world_from_camera_r = world_from_camera.rotation();
@@ -208,7 +223,8 @@ cv::Mat Renderer::Shade(const Scene& scene, double t, const std::vector<Quad>& q
     g.center = world_from_object.translation();
     shadows.push_back(g);
   }
-  cv::Mat linear(h, w, CV_32FC3);
+  linear_buffer->create(h, w, CV_32FC3);
+  cv::Mat& linear = *linear_buffer;
   for (int y = 0; y < h; ++y) {
     const double yn = (y - camera_.cy) / camera_.fy;
     const int32_t* ids = buffers.quad.ptr<int32_t>(y);
@@ -271,7 +287,8 @@ cv::Mat Renderer::Shade(const Scene& scene, double t, const std::vector<Quad>& q
   const float gain = static_cast<float>(255.0 * exposure.gain);
   const float offset = static_cast<float>(exposure.offset);
   const float sigma = static_cast<float>(options_.noise_sigma);
-  cv::Mat out(h, w, options_.gray ? CV_8UC1 : CV_8UC3);
+  image->create(h, w, options_.gray ? CV_8UC1 : CV_8UC3);
+  cv::Mat& out = *image;
   for (int y = 0; y < h; ++y) {
     const cv::Vec3f* row = linear.ptr<cv::Vec3f>(y);
     uint8_t* dst = out.ptr<uint8_t>(y);
@@ -289,28 +306,38 @@ cv::Mat Renderer::Shade(const Scene& scene, double t, const std::vector<Quad>& q
       }
     }
   }
-  return out;
 }
 
 StereoRender Renderer::RenderStereo(const Scene& scene, double t,
                                     const geometry::SE3d& world_from_left, const Exposure& left,
                                     const Exposure& right) const {
+  RenderScratch scratch;
+  StereoRender out;
+  RenderStereo(scene, t, world_from_left, left, right, &scratch, &out);
+  return out;
+}
+
+void Renderer::RenderStereo(const Scene& scene, double t, const geometry::SE3d& world_from_left,
+                            const Exposure& left, const Exposure& right, RenderScratch* scratch,
+                            StereoRender* out) const {
   const std::vector<Quad> quads = QuadsAt(scene, t);
   const geometry::SE3d world_from_right = RightFromLeftPose(world_from_left, camera_.baseline);
-  StereoRender out;
   auto render_right = [&]() {
-    const ViewBuffers buffers = Rasterize(quads, world_from_right);
-    out.right = Shade(scene, t, quads, world_from_right, buffers, right);
+    Rasterize(quads, world_from_right, &scratch->right);
+    Shade(scene, t, quads, world_from_right, scratch->right, right, &scratch->linear_right, &out->right);
   };
   std::thread worker;
   if (options_.num_threads >= 2) worker = std::thread(render_right);
-  const ViewBuffers buffers = Rasterize(quads, world_from_left);
-  out.left = Shade(scene, t, quads, world_from_left, buffers, left);
-  out.depth = buffers.depth;
-  out.panoptic = cv::Mat(camera_.height, camera_.width, CV_16UC1);
+  // The left depth is rasterised straight into the output.
+  scratch->left.depth = out->depth;
+  Rasterize(quads, world_from_left, &scratch->left);
+  out->depth = scratch->left.depth;
+  Shade(scene, t, quads, world_from_left, scratch->left, left, &scratch->linear_left, &out->left);
+  const ViewBuffers& buffers = scratch->left;
+  out->panoptic.create(camera_.height, camera_.width, CV_16UC1);
   for (int y = 0; y < camera_.height; ++y) {
     const int32_t* ids = buffers.quad.ptr<int32_t>(y);
-    uint16_t* dst = out.panoptic.ptr<uint16_t>(y);
+    uint16_t* dst = out->panoptic.ptr<uint16_t>(y);
     for (int x = 0; x < camera_.width; ++x) {
       dst[x] = ids[x] < 0 ? PanopticId(kClassSky, 0) : quads[ids[x]].panoptic;
     }
@@ -320,7 +347,6 @@ StereoRender Renderer::RenderStereo(const Scene& scene, double t,
   } else {
     render_right();
   }
-  return out;
 }
 
 }  // namespace twist::sim

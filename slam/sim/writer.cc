@@ -81,12 +81,14 @@ absl::Status WriteAll(const Scenario& sc, const fs::path& root, const WriteOptio
   const Renderer renderer(sc.camera, options.render);
   std::string poses, times, labels, objects;
   std::vector<double> render_ms;
+  RenderScratch scratch;
+  StereoRender frame;
   for (int i = 0; i < sc.num_frames; ++i) {
     const geometry::SE3d world_from_camera = sc.WorldFromCamera(i);
     Exposure left, right;
     FrameExposures(sc, i, &left, &right);
     Stopwatch watch;
-    const StereoRender frame = renderer.RenderStereo(sc.scene, sc.TimeOf(i), world_from_camera, left, right);
+    renderer.RenderStereo(sc.scene, sc.TimeOf(i), world_from_camera, left, right, &scratch, &frame);
     render_ms.push_back(watch.ElapsedMs());
     const std::string name = absl::StrFormat("%06d.png", i);
     if (auto st = WritePng(root / "image_02" / seq / name, frame.left, options.png_compression); !st.ok())
