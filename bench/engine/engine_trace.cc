@@ -18,6 +18,7 @@ int main(int argc, char** argv) {
   auto seq = io::OpenSequence(std::string(TWIST_SOURCE_DIR) + "/../shared/data/kitti_odometry_06_f0-50", "kitti-odometry", "06");
   SessionConfig config; config.camera = (*seq)->camera();
   if (argc > 1) config.options.num_features = atoi(argv[1]);
+  if (getenv("THDEPTH")) config.options.max_depth_baselines = atof(getenv("THDEPTH"));
   // ORB micro timing
   { auto f = (*seq)->ReadFrame(0);
     features::OrbOptions o; features::OrbExtractor orb(o);
@@ -44,6 +45,37 @@ int main(int argc, char** argv) {
     int lv[8]={0}; for (auto& kp : k) lv[kp.octave]++; for (int l=0;l<8;++l) printf("L%d:%d ", l, lv[l]); printf("\n");
   }
   printf("camera %s\n", config.camera.DebugString().c_str());
+  if (getenv("SGBM")) {
+    // Our sub-pixel disparities vs OpenCV semi-global matching (1/16 px).
+    features::OrbExtractor orb(features::OrbOptions{});
+    for (int i0 : {5, 20, 35}) {
+      auto a = (*seq)->ReadFrame(i0);
+      std::vector<cv::KeyPoint> kl, kr; cv::Mat dl, dr; std::vector<cv::Mat> ll, lr;
+      orb.Extract(a->left, cv::Mat(), &kl, &dl, &ll); orb.Extract(a->right, cv::Mat(), &kr, &dr, &lr);
+      auto st = features::MatchStereo(config.camera, orb.pyramid(), kl, dl, kr, dr, ll, lr);
+      auto sgbm = cv::StereoSGBM::create(0, 128, 5, 8 * 25, 32 * 25, 1, 0, 10, 100, 2, cv::StereoSGBM::MODE_SGBM);
+      cv::Mat disp;
+      sgbm->compute(a->left, a->right, disp);
+      std::vector<double> diffs[3];
+      for (size_t q = 0; q < kl.size(); ++q) {
+        if (st.depth[q] <= 0) continue;
+        const int x = cvRound(kl[q].pt.x), y = cvRound(kl[q].pt.y);
+        const short d16 = disp.at<short>(y, x);
+        if (d16 <= 0) continue;
+        const double ours = kl[q].pt.x - st.u_right[q];
+        const double diff = ours - d16 / 16.0;
+        if (std::abs(diff) > 2) continue;
+        diffs[std::min(2, kl[q].octave)].push_back(diff);
+      }
+      for (int l = 0; l < 3; ++l) {
+        auto& d = diffs[l];
+        if (d.empty()) continue;
+        std::sort(d.begin(), d.end());
+        double mean = 0; for (double v : d) mean += v; mean /= d.size();
+        printf("frame %d level %s: %zu pts, ours - SGBM disparity: median %.3f mean %.3f px\n", i0, l == 2 ? ">=2" : std::to_string(l).c_str(), d.size(), d[d.size() / 2], mean);
+      }
+    }
+  }
   if (getenv("DISPBIAS")) {
     // Stereo disparity vs the disparity of a two-view triangulation with the
     // ground-truth motion over 2 frames (independent of the stereo matcher).
