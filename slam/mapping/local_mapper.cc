@@ -135,13 +135,16 @@ MappingTimings LocalMapper::ProcessKeyFrame(int64_t kf_id,
   MappingTimings t;
   Stopwatch sw;
   {
-    std::lock_guard<std::mutex> lock(map->mutex());
+    // The lock is released between neighbours (see YieldLock) so that the
+    // tracking thread is not blocked for the whole step in background mode.
+    // Only the mapper erases keyframes and points, so `kf` stays valid.
+    std::unique_lock<std::mutex> lock(map->mutex());
     map::KeyFrame* kf = map->keyframe(kf_id);
     if (kf == nullptr) return t;
     map->UpdateConnections(kf);
     CullRecentPoints(*kf, map);
-    t.new_points = TriangulateWithNeighbours(kf, map);
-    FuseWithNeighbours(kf, map);
+    t.new_points = TriangulateWithNeighbours(kf, map, &lock);
+    FuseWithNeighbours(kf, map, &lock);
   }
   t.process_ms = sw.ElapsedMs();
   sw.Restart();
@@ -176,7 +179,16 @@ void LocalMapper::CullRecentPoints(const map::KeyFrame& kf, map::Map* map) {
   }
 }
 
-int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1, map::Map* map) {
+void LocalMapper::YieldLock(std::unique_lock<std::mutex>* lock) {
+  if (lock == nullptr) return;
+  lock->unlock();
+  std::this_thread::yield();
+  lock->lock();
+}
+
+int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1,
+                                           map::Map* map,
+                                           std::unique_lock<std::mutex>* lock) {
   const auto& f1 = *kf1->features;
   const geometry::SE3d& T1 = kf1->camera_from_world;
   const Eigen::Vector3d C1 = kf1->CameraCenter();
@@ -186,6 +198,7 @@ int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1, map::Map* map) {
   const Eigen::Matrix3d K_inv = K.inverse();
   int created = 0;
   for (int64_t nb_id : kf1->BestCovisible(options_.triangulation_neighbours)) {
+    YieldLock(lock);
     map::KeyFrame* kf2 = map->keyframe(nb_id);
     if (kf2 == nullptr) continue;
     const auto& f2 = *kf2->features;
@@ -365,7 +378,9 @@ int LocalMapper::Fuse(map::KeyFrame* kf,
   return fused;
 }
 
-void LocalMapper::FuseWithNeighbours(map::KeyFrame* kf, map::Map* map) {
+void LocalMapper::FuseWithNeighbours(map::KeyFrame* kf,
+                                     map::Map* map,
+                                     std::unique_lock<std::mutex>* lock) {
   std::vector<int64_t> targets;
   std::set<int64_t> in_targets{kf->id};
   for (int64_t nb : kf->BestCovisible(options_.fusion_neighbours)) {
@@ -382,9 +397,11 @@ void LocalMapper::FuseWithNeighbours(map::KeyFrame* kf, map::Map* map) {
     if (pid >= 0) own.push_back(pid);
   }
   for (int64_t t : targets) {
+    YieldLock(lock);
     map::KeyFrame* tkf = map->keyframe(t);
     if (tkf != nullptr) Fuse(tkf, own, map, 3.f);
   }
+  YieldLock(lock);
   // Neighbours' points into the current keyframe.
   std::vector<int64_t> theirs;
   std::set<int64_t> seen;

@@ -92,8 +92,10 @@ class LocalMapper {
 
  private:
   void CullRecentPoints(const map::KeyFrame& kf, map::Map* map);
-  int TriangulateWithNeighbours(map::KeyFrame* kf, map::Map* map);
-  void FuseWithNeighbours(map::KeyFrame* kf, map::Map* map);
+  // `lock` (held on entry and exit) is released briefly between neighbours.
+  int TriangulateWithNeighbours(map::KeyFrame* kf, map::Map* map, std::unique_lock<std::mutex>* lock);
+  void FuseWithNeighbours(map::KeyFrame* kf, map::Map* map, std::unique_lock<std::mutex>* lock);
+  static void YieldLock(std::unique_lock<std::mutex>* lock);
   int Fuse(map::KeyFrame* kf, const std::vector<int64_t>& point_ids, map::Map* map, float radius);
   void CullKeyFrames(const map::KeyFrame& kf, map::Map* map);
   int WeightedObservations(const map::MapPoint& p, const map::Map& map) const;
