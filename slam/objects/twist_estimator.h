@@ -38,7 +38,9 @@ struct TwistEstimatorOptions {
   int max_rounds = 4;          // solve / MAD / reject rounds
   int max_iterations = 20;     // LM iterations per round
   double huber_delta = 1.345;  // Huber threshold in units of σ
-  double min_sigma_px = 0.25;  // floor on the MAD scale (noise-free data)
+  // Floor on the MAD scale: keypoints are not located better than this (ORB
+  // corners on pyramid levels); noise-free data would otherwise give σ = 0.
+  double min_sigma_px = 0.7;
   double max_sigma_px = 50.0;  // ceiling for the first round
   // χ² gates (95 %) on ‖r/σ‖² for mono (2 dof) and stereo (3 dof) residuals.
   double chi2_mono = 5.991;
