@@ -61,11 +61,15 @@ int GenerateCommand(int argc, char** argv) {
 
   const std::optional<int64_t> frames = args->GetInt("frames", 100);
   if (!frames || *frames < 1 || *frames > 1000000) {
-    return Fail(kCommand, "--frames must be an integer in [1, 1000000], got '" + args->Get("frames") + "'", 2);
+    return Fail(kCommand,
+                "--frames must be an integer in [1, 1000000], got '" + args->Get("frames") + "'",
+                2);
   }
   const std::optional<int64_t> seed = args->GetInt("seed", 1);
   if (!seed || *seed < 0 || *seed > 4294967295LL) {
-    return Fail(kCommand, "--seed must be an integer in [0, 4294967295], got '" + args->Get("seed") + "'", 2);
+    return Fail(kCommand,
+                "--seed must be an integer in [0, 4294967295], got '" + args->Get("seed") + "'",
+                2);
   }
   const std::string seq = args->Get("seq", "0000");
   if (!ValidSequenceName(seq)) {
@@ -74,8 +78,8 @@ int GenerateCommand(int argc, char** argv) {
   const std::string out = args->Get("out");
   if (out.empty()) return Fail(kCommand, "--out must not be empty", 2);
 
-  absl::StatusOr<sim::Scenario> scenario =
-      sim::MakeScenario(args->Get("scenario"), static_cast<uint32_t>(*seed), static_cast<int>(*frames));
+  absl::StatusOr<sim::Scenario> scenario = sim::MakeScenario(
+      args->Get("scenario"), static_cast<uint32_t>(*seed), static_cast<int>(*frames));
   if (!scenario.ok()) return Fail(kCommand, std::string(scenario.status().message()), 2);
 
   sim::WriteOptions options;
@@ -89,9 +93,16 @@ int GenerateCommand(int argc, char** argv) {
   sim::WriteStats stats;
   const absl::Status status = sim::WriteSequence(*scenario, out, options, progress, &stats);
   if (!status.ok()) return Fail(kCommand, std::string(status.message()), 1);
-  std::printf("wrote %s sequence %s (%d frames, seed %u) to %s; median render %.0f ms/frame, total %.1f s\n",
-              scenario->name.c_str(), seq.c_str(), scenario->num_frames, scenario->seed, out.c_str(),
-              stats.render_ms_median, stats.total_ms / 1000.0);
+  std::printf(
+      "wrote %s sequence %s (%d frames, seed %u) to %s; median render %.0f ms/frame, total %.1f "
+      "s\n",
+      scenario->name.c_str(),
+      seq.c_str(),
+      scenario->num_frames,
+      scenario->seed,
+      out.c_str(),
+      stats.render_ms_median,
+      stats.total_ms / 1000.0);
   return 0;
 }
 

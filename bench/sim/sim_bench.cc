@@ -10,11 +10,10 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
-#include <string>
-#include <vector>
-
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
+#include <string>
+#include <vector>
 
 #include "slam/common/timer.h"
 #include "slam/sim/labels.h"
@@ -27,7 +26,8 @@ namespace {
 double Percentile(std::vector<double> v, double p) {
   if (v.empty()) return 0.0;
   std::sort(v.begin(), v.end());
-  const size_t i = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size() - 1) + 0.5));
+  const size_t i =
+      std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size() - 1) + 0.5));
   return v[i];
 }
 
@@ -49,15 +49,24 @@ int main(int argc, char** argv) {
     } else if (a == "--json" && has_value) {
       json_path = argv[++i];
     } else {
-      std::fprintf(stderr, "usage: sim_bench [--frames N] [--threads T] [--scenario NAME] [--json FILE]\n");
+      std::fprintf(stderr,
+                   "usage: sim_bench [--frames N] [--threads T] [--scenario NAME] [--json FILE]\n");
       return 2;
     }
   }
   if (frames < 1) frames = 1;
   std::string json = "{\"benchmark\":\"sim_render\",\"width\":1242,\"height\":375,\"threads\":" +
-                     std::to_string(threads) + ",\"frames\":" + std::to_string(frames) + ",\"scenarios\":[";
-  std::printf("%-30s %10s %10s %10s %10s %9s %9s %9s\n", "scenario", "render_med", "render_p95",
-              "labels_med", "frame_med", "orb_min", "dyn_med", "dyn_max");
+                     std::to_string(threads) + ",\"frames\":" + std::to_string(frames) +
+                     ",\"scenarios\":[";
+  std::printf("%-30s %10s %10s %10s %10s %9s %9s %9s\n",
+              "scenario",
+              "render_med",
+              "render_p95",
+              "labels_med",
+              "frame_med",
+              "orb_min",
+              "dyn_med",
+              "dyn_max");
   bool first = true;
   for (const twist::sim::ScenarioInfo& info : twist::sim::ListScenarios()) {
     if (!only.empty() && info.name != only) continue;
@@ -77,7 +86,8 @@ int main(int argc, char** argv) {
       twist::sim::Exposure left, right;
       twist::sim::FrameExposures(*sc, i, &left, &right);
       twist::Stopwatch watch;
-      renderer.RenderStereo(sc->scene, sc->TimeOf(i), sc->WorldFromCamera(i), left, right, &scratch, &r);
+      renderer.RenderStereo(
+          sc->scene, sc->TimeOf(i), sc->WorldFromCamera(i), left, right, &scratch, &r);
       render_ms.push_back(watch.ElapsedMs());
       twist::Stopwatch label_watch;
       const auto labels = twist::sim::ComputeFrameLabels(*sc, renderer, i, r.panoptic);
@@ -94,21 +104,37 @@ int main(int argc, char** argv) {
         const uint16_t* row = r.panoptic.ptr<uint16_t>(y);
         for (int x = 0; x < r.panoptic.cols; ++x) dynamic += row[x] % 1000 != 0 ? 1 : 0;
       }
-      dynamic_share.push_back(static_cast<double>(dynamic) / static_cast<double>(r.panoptic.total()));
+      dynamic_share.push_back(static_cast<double>(dynamic) /
+                              static_cast<double>(r.panoptic.total()));
     }
     const double med = Percentile(render_ms, 0.5), p95 = Percentile(render_ms, 0.95);
-    std::printf("%-30s %8.1fms %8.1fms %8.1fms %8.1fms %9.0f %8.1f%% %8.1f%%\n", info.name.c_str(), med,
-                p95, Percentile(label_ms, 0.5), Percentile(total_ms, 0.5), Percentile(orb, 0.0),
-                100.0 * Percentile(dynamic_share, 0.5), 100.0 * Percentile(dynamic_share, 1.0));
+    std::printf("%-30s %8.1fms %8.1fms %8.1fms %8.1fms %9.0f %8.1f%% %8.1f%%\n",
+                info.name.c_str(),
+                med,
+                p95,
+                Percentile(label_ms, 0.5),
+                Percentile(total_ms, 0.5),
+                Percentile(orb, 0.0),
+                100.0 * Percentile(dynamic_share, 0.5),
+                100.0 * Percentile(dynamic_share, 1.0));
     char buf[1024];
-    std::snprintf(buf, sizeof(buf),
+    std::snprintf(buf,
+                  sizeof(buf),
                   "%s{\"scenario\":\"%s\",\"render_ms_median\":%.2f,\"render_ms_p95\":%.2f,"
                   "\"labels_ms_median\":%.2f,\"frame_ms_median\":%.2f,\"frame_ms_p95\":%.2f,"
                   "\"orb_keypoints_min\":%.0f,\"orb_keypoints_median\":%.0f,"
                   "\"dynamic_pixel_share_median\":%.4f,\"dynamic_pixel_share_max\":%.4f}",
-                  first ? "" : ",", info.name.c_str(), med, p95, Percentile(label_ms, 0.5),
-                  Percentile(total_ms, 0.5), Percentile(total_ms, 0.95), Percentile(orb, 0.0),
-                  Percentile(orb, 0.5), Percentile(dynamic_share, 0.5), Percentile(dynamic_share, 1.0));
+                  first ? "" : ",",
+                  info.name.c_str(),
+                  med,
+                  p95,
+                  Percentile(label_ms, 0.5),
+                  Percentile(total_ms, 0.5),
+                  Percentile(total_ms, 0.95),
+                  Percentile(orb, 0.0),
+                  Percentile(orb, 0.5),
+                  Percentile(dynamic_share, 0.5),
+                  Percentile(dynamic_share, 1.0));
     json += buf;
     first = false;
   }

@@ -1,10 +1,10 @@
 #include "slam/sim/labels.h"
 
+#include <glog/logging.h>
+
 #include <algorithm>
 #include <cmath>
 #include <map>
-
-#include <glog/logging.h>
 
 #include "absl/strings/str_format.h"
 
@@ -16,8 +16,10 @@ double WrapAngle(double a) {
   return a - M_PI;
 }
 
-std::vector<FrameLabel> ComputeFrameLabels(const Scenario& scenario, const Renderer& renderer,
-                                           int frame, const cv::Mat& panoptic) {
+std::vector<FrameLabel> ComputeFrameLabels(const Scenario& scenario,
+                                           const Renderer& renderer,
+                                           int frame,
+                                           const cv::Mat& panoptic) {
   CHECK_EQ(panoptic.type(), CV_16UC1);
   struct Extent {
     int x0 = INT32_MAX, y0 = INT32_MAX, x1 = -1, y1 = -1;
@@ -68,7 +70,8 @@ std::vector<FrameLabel> ComputeFrameLabels(const Scenario& scenario, const Rende
     label.rotation_y = std::atan2(r(0, 2), r(0, 0));
     label.alpha = WrapAngle(label.rotation_y - std::atan2(label.location.x(), label.location.z()));
     label.world_from_object =
-        world_from_object * geometry::SE3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, -0.5 * object.h, 0));
+        world_from_object *
+        geometry::SE3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, -0.5 * object.h, 0));
     // Truncation from the projected 3D box.
     bool behind = false;
     double u0 = 1e18, v0 = 1e18, u1 = -1e18, v1 = -1e18;
@@ -104,24 +107,49 @@ std::vector<FrameLabel> ComputeFrameLabels(const Scenario& scenario, const Rende
     label.occluded = visible >= 0.95 ? 0 : visible >= 0.5 ? 1 : 2;
     labels.push_back(label);
   }
-  std::sort(labels.begin(), labels.end(),
-            [](const FrameLabel& a, const FrameLabel& b) { return a.track_id < b.track_id; });
+  std::sort(labels.begin(), labels.end(), [](const FrameLabel& a, const FrameLabel& b) {
+    return a.track_id < b.track_id;
+  });
   return labels;
 }
 
 std::string FormatKittiLabel(int frame, const FrameLabel& l) {
-  return absl::StrFormat("%d %d %s %d %d %.6f %.6f %.6f %.6f %.6f %.6f %.6f %.6f %.6f %.6f %.6f %.6f",
-                         frame, l.track_id, l.type, l.truncated, l.occluded, l.alpha, l.x1, l.y1, l.x2,
-                         l.y2, l.h, l.w, l.l, l.location.x(), l.location.y(), l.location.z(),
-                         l.rotation_y);
+  return absl::StrFormat(
+      "%d %d %s %d %d %.6f %.6f %.6f %.6f %.6f %.6f %.6f %.6f %.6f %.6f %.6f %.6f",
+      frame,
+      l.track_id,
+      l.type,
+      l.truncated,
+      l.occluded,
+      l.alpha,
+      l.x1,
+      l.y1,
+      l.x2,
+      l.y2,
+      l.h,
+      l.w,
+      l.l,
+      l.location.x(),
+      l.location.y(),
+      l.location.z(),
+      l.rotation_y);
 }
 
 std::string FormatObjectGt(int frame, const FrameLabel& l) {
   const Eigen::Vector3d& t = l.world_from_object.translation();
   Eigen::Quaterniond q = l.world_from_object.unit_quaternion();
   if (q.w() < 0.0) q.coeffs() = -q.coeffs();
-  return absl::StrFormat("%d %d %d %.9f %.9f %.9f %.9f %.9f %.9f %.9f", frame, l.track_id, l.class_id,
-                         t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
+  return absl::StrFormat("%d %d %d %.9f %.9f %.9f %.9f %.9f %.9f %.9f",
+                         frame,
+                         l.track_id,
+                         l.class_id,
+                         t.x(),
+                         t.y(),
+                         t.z(),
+                         q.x(),
+                         q.y(),
+                         q.z(),
+                         q.w());
 }
 
 }  // namespace twist::sim

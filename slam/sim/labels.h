@@ -2,11 +2,10 @@
 // world_from_object poses of every object visible in the left image.
 #pragma once
 
-#include <string>
-#include <vector>
-
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
+#include <string>
+#include <vector>
 
 #include "slam/geometry/se3.h"
 #include "slam/sim/renderer.h"
@@ -17,7 +16,7 @@ namespace twist::sim {
 struct FrameLabel {
   int track_id = 0;  // == panoptic instance id
   int class_id = 0;
-  std::string type;  // KITTI type: Car, Van, Pedestrian, Door
+  std::string type;   // KITTI type: Car, Van, Pedestrian, Door
   int truncated = 0;  // KITTI tracking levels: 0 none, 1 partly, 2 heavily (box leaves the image)
   int occluded = 0;   // 0 fully visible (>= 95 %), 1 partly (>= 50 %), 2 largely
   double alpha = 0.0;
@@ -34,8 +33,10 @@ struct FrameLabel {
 
 // Labels of the objects with at least one pixel in `panoptic` (the left mask
 // of `frame`), ordered by track id.
-std::vector<FrameLabel> ComputeFrameLabels(const Scenario& scenario, const Renderer& renderer,
-                                           int frame, const cv::Mat& panoptic);
+std::vector<FrameLabel> ComputeFrameLabels(const Scenario& scenario,
+                                           const Renderer& renderer,
+                                           int frame,
+                                           const cv::Mat& panoptic);
 
 // "frame track_id type truncated occluded alpha x1 y1 x2 y2 h w l x y z rotation_y"
 std::string FormatKittiLabel(int frame, const FrameLabel& label);

@@ -1,9 +1,9 @@
 #include "slam/sim/motion.h"
 
+#include <glog/logging.h>
+
 #include <algorithm>
 #include <cmath>
-
-#include <glog/logging.h>
 
 namespace twist::sim {
 
@@ -14,7 +14,8 @@ Eigen::Matrix3d RotY(double angle) {
   return r;
 }
 
-PlanarMotion::PlanarMotion(const PlanarState& start, std::vector<PlanarSegment> segments,
+PlanarMotion::PlanarMotion(const PlanarState& start,
+                           std::vector<PlanarSegment> segments,
                            double body_y)
     : start_(start), segments_(std::move(segments)), body_y_(body_y) {
   CHECK_GE(start.speed, 0.0);
@@ -31,7 +32,9 @@ PlanarMotion::PlanarMotion(const PlanarState& start, std::vector<PlanarSegment> 
   starts_.push_back({t, s, state});  // the open-ended straight tail
 }
 
-PlanarState PlanarMotion::Advance(const PlanarState& s, const PlanarSegment& seg, double dt,
+PlanarState PlanarMotion::Advance(const PlanarState& s,
+                                  const PlanarSegment& seg,
+                                  double dt,
                                   double* distance) {
   double ds, v_end;
   if (seg.accel < 0.0 && s.speed + seg.accel * dt < 0.0) {
@@ -92,7 +95,10 @@ geometry::SE3d PlanarMotion::PoseAt(double t, HeadingAxis axis) const {
 RevoluteMotion::RevoluteMotion(const geometry::SE3d& world_from_body_closed,
                                const Eigen::Vector3d& hinge_point,
                                const Eigen::Vector3d& hinge_axis,
-                               double angle0, double angle1, double t0, double t1)
+                               double angle0,
+                               double angle1,
+                               double t0,
+                               double t1)
     : world_from_body_closed_(world_from_body_closed),
       hinge_point_(hinge_point),
       hinge_axis_(hinge_axis.normalized()),

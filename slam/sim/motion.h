@@ -8,9 +8,8 @@
 // closed-form functions of time, so rendering and ground truth agree exactly.
 #pragma once
 
-#include <vector>
-
 #include <Eigen/Core>
+#include <vector>
 
 #include "slam/geometry/se3.h"
 
@@ -65,7 +64,9 @@ class PlanarMotion {
     double s0;  // distance travelled at t0
     PlanarState state;
   };
-  static PlanarState Advance(const PlanarState& s, const PlanarSegment& seg, double dt,
+  static PlanarState Advance(const PlanarState& s,
+                             const PlanarSegment& seg,
+                             double dt,
                              double* distance);
 
   PlanarState start_;
@@ -83,7 +84,10 @@ class RevoluteMotion {
   RevoluteMotion(const geometry::SE3d& world_from_body_closed,
                  const Eigen::Vector3d& hinge_point,
                  const Eigen::Vector3d& hinge_axis,
-                 double angle0, double angle1, double t0, double t1);
+                 double angle0,
+                 double angle1,
+                 double t0,
+                 double t1);
 
   double AngleAt(double t) const;
   geometry::SE3d PoseAt(double t) const;

@@ -26,7 +26,8 @@ inline uint32_t Hash(uint32_t x) {
   return x;
 }
 inline uint32_t Hash3(int32_t a, int32_t b, uint32_t seed) {
-  return Hash(static_cast<uint32_t>(a) * 0x9e3779b1U ^ Hash(static_cast<uint32_t>(b) * 0x85ebca77U ^ seed));
+  return Hash(static_cast<uint32_t>(a) * 0x9e3779b1U ^
+              Hash(static_cast<uint32_t>(b) * 0x85ebca77U ^ seed));
 }
 // Uniform in [0, 1).
 inline float Unit(uint32_t h) { return static_cast<float>(h >> 8) * (1.0f / 16777216.0f); }
@@ -72,8 +73,15 @@ inline float Fbm(float x, float y, float freq, int octaves, float gain, float fw
 // *smaller* footprint resolves it, and box-filtered along the longer axis by
 // averaging up to `max_taps` samples spread over the footprint. Keeps the
 // fine grain across the image rows that stereo matching needs.
-inline float FbmAniso(float x, float y, float freq, int octaves, float gain, float fw_x, float fw_y,
-                      uint32_t seed, int max_taps = 8) {
+inline float FbmAniso(float x,
+                      float y,
+                      float freq,
+                      int octaves,
+                      float gain,
+                      float fw_x,
+                      float fw_y,
+                      uint32_t seed,
+                      int max_taps = 8) {
   const float fmin = std::min(fw_x, fw_y), fmax = std::max(fw_x, fw_y);
   const bool major_x = fw_x >= fw_y;
   float sum = 0.0f, amp = 1.0f, norm = 0.0f;
@@ -82,7 +90,8 @@ inline float FbmAniso(float x, float y, float freq, int octaves, float gain, flo
     const float w = BandWeight(freq * fmin);
     if (w <= 0.0f) break;
     const uint32_t oseed = seed + 1013u * static_cast<uint32_t>(o);
-    const int taps = std::min(max_taps, std::max(1, static_cast<int>(std::ceil(freq * fmax / 0.3f))));
+    const int taps =
+        std::min(max_taps, std::max(1, static_cast<int>(std::ceil(freq * fmax / 0.3f))));
     float v = 0.0f;
     if (taps == 1) {
       v = ValueNoise(x * freq, y * freq, oseed);

@@ -1,13 +1,13 @@
 #include "slam/sim/renderer.h"
 
+#include <glog/logging.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <limits>
-#include <thread>
-
-#include <glog/logging.h>
 #include <opencv2/imgproc.hpp>
+#include <thread>
 
 #include "slam/sim/procedural.h"
 #include "slam/sim/texture.h"
@@ -39,11 +39,15 @@ bool ToCamera(const Quad& q, const geometry::SE3d& camera_from_world, CamQuad* o
 }
 
 // Pixel bounding box [x0, x1] x [y0, y1] of a camera-frame quad clipped at z >= near.
-bool PixelBounds(const CamQuad& q, const geometry::StereoCamera& cam, double near, int* x0, int* x1,
-                 int* y0, int* y1) {
-  const std::array<Eigen::Vector3d, 4> corners = {q.p0, q.p0 + q.su * q.eu,
-                                                  q.p0 + q.su * q.eu + q.sv * q.ev,
-                                                  q.p0 + q.sv * q.ev};
+bool PixelBounds(const CamQuad& q,
+                 const geometry::StereoCamera& cam,
+                 double near,
+                 int* x0,
+                 int* x1,
+                 int* y0,
+                 int* y1) {
+  const std::array<Eigen::Vector3d, 4> corners = {
+      q.p0, q.p0 + q.su * q.eu, q.p0 + q.su * q.eu + q.sv * q.ev, q.p0 + q.sv * q.ev};
   double umin = std::numeric_limits<double>::infinity(), umax = -umin, vmin = umin, vmax = -umin;
   int count = 0;
   auto add = [&](const Eigen::Vector3d& p) {
@@ -90,9 +94,13 @@ struct GroundShadow {
 };
 
 // Rasterises into buffers covering the pixel rectangle `roi` (stride = roi.width).
-void RasterizeRegion(const std::vector<Quad>& quads, const geometry::SE3d& world_from_camera,
-                     const geometry::StereoCamera& cam, double near, const cv::Rect& roi,
-                     float* depth_buf, int32_t* id_buf) {
+void RasterizeRegion(const std::vector<Quad>& quads,
+                     const geometry::SE3d& world_from_camera,
+                     const geometry::StereoCamera& cam,
+                     double near,
+                     const cv::Rect& roi,
+                     float* depth_buf,
+                     int32_t* id_buf) {
   const geometry::SE3d camera_from_world = world_from_camera.Inverse();
   std::vector<double> xn(roi.width);
   for (int x = 0; x < roi.width; ++x) xn[x] = (roi.x + x - cam.cx) / cam.fx;
@@ -132,7 +140,8 @@ void RasterizeRegion(const std::vector<Quad>& quads, const geometry::SE3d& world
 }  // namespace
 
 geometry::SE3d RightFromLeftPose(const geometry::SE3d& world_from_left, double baseline) {
-  return world_from_left * geometry::SE3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(baseline, 0, 0));
+  return world_from_left *
+         geometry::SE3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(baseline, 0, 0));
 }
 
 Renderer::Renderer(const geometry::StereoCamera& camera, const RenderOptions& options)
@@ -151,7 +160,6 @@ std::vector<Quad> Renderer::QuadsAt(const Scene& scene, double t) {
   return quads;
 }
 
-
 ViewBuffers Renderer::Rasterize(const std::vector<Quad>& quads,
                                 const geometry::SE3d& world_from_camera) const {
   ViewBuffers out;
@@ -159,15 +167,21 @@ ViewBuffers Renderer::Rasterize(const std::vector<Quad>& quads,
   return out;
 }
 
-void Renderer::Rasterize(const std::vector<Quad>& quads, const geometry::SE3d& world_from_camera,
+void Renderer::Rasterize(const std::vector<Quad>& quads,
+                         const geometry::SE3d& world_from_camera,
                          ViewBuffers* out) const {
   const int w = camera_.width, h = camera_.height;
   out->depth.create(h, w, CV_32FC1);
   out->depth.setTo(cv::Scalar(std::numeric_limits<float>::infinity()));
   out->quad.create(h, w, CV_32SC1);
   out->quad.setTo(cv::Scalar(-1));
-  RasterizeRegion(quads, world_from_camera, camera_, options_.near_clip, cv::Rect(0, 0, w, h),
-                  out->depth.ptr<float>(), out->quad.ptr<int32_t>());
+  RasterizeRegion(quads,
+                  world_from_camera,
+                  camera_,
+                  options_.near_clip,
+                  cv::Rect(0, 0, w, h),
+                  out->depth.ptr<float>(),
+                  out->quad.ptr<int32_t>());
 }
 
 int64_t Renderer::CountCoverage(const std::vector<Quad>& quads,
@@ -189,21 +203,30 @@ int64_t Renderer::CountCoverage(const std::vector<Quad>& quads,
   const cv::Rect roi(rx0, ry0, rx1 - rx0 + 1, ry1 - ry0 + 1);
   std::vector<float> depth(static_cast<size_t>(roi.area()), std::numeric_limits<float>::infinity());
   std::vector<int32_t> ids(static_cast<size_t>(roi.area()), -1);
-  RasterizeRegion(quads, world_from_camera, camera_, options_.near_clip, roi, depth.data(), ids.data());
+  RasterizeRegion(
+      quads, world_from_camera, camera_, options_.near_clip, roi, depth.data(), ids.data());
   return std::count_if(ids.begin(), ids.end(), [](int32_t v) { return v >= 0; });
 }
 
-cv::Mat Renderer::Shade(const Scene& scene, double t, const std::vector<Quad>& quads,
-                        const geometry::SE3d& world_from_camera, const ViewBuffers& buffers,
+cv::Mat Renderer::Shade(const Scene& scene,
+                        double t,
+                        const std::vector<Quad>& quads,
+                        const geometry::SE3d& world_from_camera,
+                        const ViewBuffers& buffers,
                         const Exposure& exposure) const {
   cv::Mat linear, out;
   Shade(scene, t, quads, world_from_camera, buffers, exposure, &linear, &out);
   return out;
 }
 
-void Renderer::Shade(const Scene& scene, double t, const std::vector<Quad>& quads,
-                     const geometry::SE3d& world_from_camera, const ViewBuffers& buffers,
-                     const Exposure& exposure, cv::Mat* linear_buffer, cv::Mat* image) const {
+void Renderer::Shade(const Scene& scene,
+                     double t,
+                     const std::vector<Quad>& quads,
+                     const geometry::SE3d& world_from_camera,
+                     const ViewBuffers& buffers,
+                     const Exposure& exposure,
+                     cv::Mat* linear_buffer,
+                     cv::Mat* image) const {
   const int w = camera_.width, h = camera_.height;
   const geometry::SE3d camera_from_world = world_from_camera.Inverse();
   const Eigen::Matrix3d world_from_camera_r = world_from_camera.rotation();
@@ -268,11 +291,14 @@ void Renderer::Shade(const Scene& scene, double t, const std::vector<Quad>& quad
           for (const GroundShadow& g : shadows) {
             if ((sample.p_in_world - g.center).squaredNorm() > g.radius_sq) continue;
             const Eigen::Vector3d o = g.object_from_world * sample.p_in_world;
-            const float cover =
-                procedural::FilteredBox(static_cast<float>(o.x()), static_cast<float>(-g.half_l),
-                                        static_cast<float>(g.half_l), 2.0f * fw + 0.25f) *
-                procedural::FilteredBox(static_cast<float>(o.z()), static_cast<float>(-g.half_w),
-                                        static_cast<float>(g.half_w), 2.0f * fw + 0.25f);
+            const float cover = procedural::FilteredBox(static_cast<float>(o.x()),
+                                                        static_cast<float>(-g.half_l),
+                                                        static_cast<float>(g.half_l),
+                                                        2.0f * fw + 0.25f) *
+                                procedural::FilteredBox(static_cast<float>(o.z()),
+                                                        static_cast<float>(-g.half_w),
+                                                        static_cast<float>(g.half_w),
+                                                        2.0f * fw + 0.25f);
             c *= 1.0f - 0.6f * cover;
           }
         }
@@ -281,7 +307,11 @@ void Renderer::Shade(const Scene& scene, double t, const std::vector<Quad>& quad
     }
   }
   if (options_.blur_sigma > 0.0) {
-    cv::GaussianBlur(linear, linear, cv::Size(3, 3), options_.blur_sigma, options_.blur_sigma,
+    cv::GaussianBlur(linear,
+                     linear,
+                     cv::Size(3, 3),
+                     options_.blur_sigma,
+                     options_.blur_sigma,
                      cv::BORDER_REPLICATE);
   }
   const float gain = static_cast<float>(255.0 * exposure.gain);
@@ -300,7 +330,8 @@ void Renderer::Shade(const Scene& scene, double t, const std::vector<Quad>& quad
         dst[x] = cv::saturate_cast<uint8_t>(gain * v + offset + n);
       } else {
         for (int k = 0; k < 3; ++k) {
-          const float n = sigma * HashNoise(exposure.noise_seed, pixel * 3u + static_cast<uint32_t>(k));
+          const float n =
+              sigma * HashNoise(exposure.noise_seed, pixel * 3u + static_cast<uint32_t>(k));
           dst[3 * x + k] = cv::saturate_cast<uint8_t>(gain * row[x][k] + offset + n);
         }
       }
@@ -308,8 +339,10 @@ void Renderer::Shade(const Scene& scene, double t, const std::vector<Quad>& quad
   }
 }
 
-StereoRender Renderer::RenderStereo(const Scene& scene, double t,
-                                    const geometry::SE3d& world_from_left, const Exposure& left,
+StereoRender Renderer::RenderStereo(const Scene& scene,
+                                    double t,
+                                    const geometry::SE3d& world_from_left,
+                                    const Exposure& left,
                                     const Exposure& right) const {
   RenderScratch scratch;
   StereoRender out;
@@ -317,14 +350,25 @@ StereoRender Renderer::RenderStereo(const Scene& scene, double t,
   return out;
 }
 
-void Renderer::RenderStereo(const Scene& scene, double t, const geometry::SE3d& world_from_left,
-                            const Exposure& left, const Exposure& right, RenderScratch* scratch,
+void Renderer::RenderStereo(const Scene& scene,
+                            double t,
+                            const geometry::SE3d& world_from_left,
+                            const Exposure& left,
+                            const Exposure& right,
+                            RenderScratch* scratch,
                             StereoRender* out) const {
   const std::vector<Quad> quads = QuadsAt(scene, t);
   const geometry::SE3d world_from_right = RightFromLeftPose(world_from_left, camera_.baseline);
   auto render_right = [&]() {
     Rasterize(quads, world_from_right, &scratch->right);
-    Shade(scene, t, quads, world_from_right, scratch->right, right, &scratch->linear_right, &out->right);
+    Shade(scene,
+          t,
+          quads,
+          world_from_right,
+          scratch->right,
+          right,
+          &scratch->linear_right,
+          &out->right);
   };
   std::thread worker;
   if (options_.num_threads >= 2) worker = std::thread(render_right);

@@ -8,9 +8,8 @@
 #pragma once
 
 #include <cstdint>
-#include <vector>
-
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "slam/geometry/se3.h"
 #include "slam/geometry/stereo_camera.h"
@@ -19,24 +18,24 @@
 namespace twist::sim {
 
 struct RenderOptions {
-  bool gray = false;            // 8-bit gray instead of 8-bit BGR
-  double noise_sigma = 1.5;     // sensor noise (grey levels, Gaussian-like)
-  double blur_sigma = 0.5;      // optics PSF (pixels); 0 disables
-  double near_clip = 0.1;       // metres
-  int num_threads = 2;          // left and right are rendered in parallel
+  bool gray = false;         // 8-bit gray instead of 8-bit BGR
+  double noise_sigma = 1.5;  // sensor noise (grey levels, Gaussian-like)
+  double blur_sigma = 0.5;   // optics PSF (pixels); 0 disables
+  double near_clip = 0.1;    // metres
+  int num_threads = 2;       // left and right are rendered in parallel
 };
 
 // Per-eye photometric settings (exposure and noise stream).
 struct Exposure {
   double gain = 1.0;
-  double offset = 0.0;       // grey levels
+  double offset = 0.0;  // grey levels
   uint32_t noise_seed = 0;
 };
 
 // Result of rasterising one view.
 struct ViewBuffers {
-  cv::Mat depth;     // CV_32FC1, camera z (m), +inf where nothing was hit (sky)
-  cv::Mat quad;      // CV_32SC1, index into the frame's quad list, -1 for sky
+  cv::Mat depth;  // CV_32FC1, camera z (m), +inf where nothing was hit (sky)
+  cv::Mat quad;   // CV_32SC1, index into the frame's quad list, -1 for sky
 };
 
 struct StereoRender {
@@ -64,7 +63,8 @@ class Renderer {
   ViewBuffers Rasterize(const std::vector<Quad>& quads,
                         const geometry::SE3d& world_from_camera) const;
   // Same into existing buffers (reallocated only when the size changes).
-  void Rasterize(const std::vector<Quad>& quads, const geometry::SE3d& world_from_camera,
+  void Rasterize(const std::vector<Quad>& quads,
+                 const geometry::SE3d& world_from_camera,
                  ViewBuffers* out) const;
 
   // Number of pixels `quads` cover when drawn alone (no other occluders);
@@ -74,22 +74,37 @@ class Renderer {
 
   // Shades rasterised buffers into an 8-bit image with the given exposure
   // (t: scene time, for the objects' ground shadows).
-  cv::Mat Shade(const Scene& scene, double t, const std::vector<Quad>& quads,
-                const geometry::SE3d& world_from_camera, const ViewBuffers& buffers,
+  cv::Mat Shade(const Scene& scene,
+                double t,
+                const std::vector<Quad>& quads,
+                const geometry::SE3d& world_from_camera,
+                const ViewBuffers& buffers,
                 const Exposure& exposure) const;
   // Same with a caller-owned float buffer and output image.
-  void Shade(const Scene& scene, double t, const std::vector<Quad>& quads,
-             const geometry::SE3d& world_from_camera, const ViewBuffers& buffers,
-             const Exposure& exposure, cv::Mat* linear_buffer, cv::Mat* image) const;
+  void Shade(const Scene& scene,
+             double t,
+             const std::vector<Quad>& quads,
+             const geometry::SE3d& world_from_camera,
+             const ViewBuffers& buffers,
+             const Exposure& exposure,
+             cv::Mat* linear_buffer,
+             cv::Mat* image) const;
 
   // Full stereo frame: left and right images, left panoptic mask and depth.
   // The right camera is at +baseline along the left camera's x axis.
-  StereoRender RenderStereo(const Scene& scene, double t, const geometry::SE3d& world_from_left,
-                            const Exposure& left, const Exposure& right) const;
+  StereoRender RenderStereo(const Scene& scene,
+                            double t,
+                            const geometry::SE3d& world_from_left,
+                            const Exposure& left,
+                            const Exposure& right) const;
   // Same, reusing `scratch` and the Mats of `out` (which are overwritten in
   // place: Mats sharing their data with a previous `out` change too).
-  void RenderStereo(const Scene& scene, double t, const geometry::SE3d& world_from_left,
-                    const Exposure& left, const Exposure& right, RenderScratch* scratch,
+  void RenderStereo(const Scene& scene,
+                    double t,
+                    const geometry::SE3d& world_from_left,
+                    const Exposure& left,
+                    const Exposure& right,
+                    RenderScratch* scratch,
                     StereoRender* out) const;
 
   const geometry::StereoCamera& camera() const { return camera_; }

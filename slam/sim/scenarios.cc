@@ -103,8 +103,12 @@ class Builder {
     scene_->static_quads.push_back(q);
   }
 
-  void AddMarking(Eigen::Vector2d start, Eigen::Vector2d dir, double length, double width,
-                  double period = 1.0, double duty = 1.0) {
+  void AddMarking(Eigen::Vector2d start,
+                  Eigen::Vector2d dir,
+                  double length,
+                  double width,
+                  double period = 1.0,
+                  double duty = 1.0) {
     Marking m;
     m.start = start;
     m.dir = dir.normalized();
@@ -117,19 +121,31 @@ class Builder {
 
   // A static box in world coordinates (x, z ranges; heights above the road
   // from y_bottom to y_top, metres up).
-  void StaticBox(double x0, double x1, double h0, double h1, double z0, double z1,
-                 std::array<int, 6> materials, uint16_t panoptic) {
+  void StaticBox(double x0,
+                 double x1,
+                 double h0,
+                 double h1,
+                 double z0,
+                 double z1,
+                 std::array<int, 6> materials,
+                 uint16_t panoptic) {
     BoxPart box;
     box.min = Eigen::Vector3d(x0, -h1, z0);
     box.max = Eigen::Vector3d(x1, -h0, z1);
     box.materials = materials;
-    AppendBoxQuads(box, SE3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, G, 0)), panoptic,
+    AppendBoxQuads(box,
+                   SE3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, G, 0)),
+                   panoptic,
                    &scene_->static_quads);
   }
 
   // A city block: raised sidewalk slab, buildings along the street edges set
   // back by the sidewalk width, trees and poles near the curb.
-  void Block(double x0, double x1, double z0, double z1, unsigned edges,
+  void Block(double x0,
+             double x1,
+             double z0,
+             double z1,
+             unsigned edges,
              const std::vector<Interval>& no_building_z = {}) {
     Material paving;
     paving.pattern = Pattern::kPaving;
@@ -139,7 +155,12 @@ class Builder {
     paving.p0 = static_cast<float>(rng_.Pick(std::vector<double>{0.3, 0.4, 0.5}));
     paving.seed = rng_.Seed();
     const int pav = scene_->AddMaterial(paving);
-    StaticBox(x0, x1, 0.0, kCurbHeight, z0, z1,
+    StaticBox(x0,
+              x1,
+              0.0,
+              kCurbHeight,
+              z0,
+              z1,
               {curb_material_, curb_material_, -1, pav, curb_material_, curb_material_},
               PanopticId(kClassSidewalk, 0));
     const double sw = kSidewalkWidth;
@@ -172,10 +193,15 @@ class Builder {
     obj.l = van ? rng_.Uniform(4.8, 5.4) : rng_.Uniform(3.9, 4.6);
     obj.w = van ? rng_.Uniform(1.9, 2.0) : rng_.Uniform(1.70, 1.85);
     obj.h = van ? rng_.Uniform(1.95, 2.2) : rng_.Uniform(1.40, 1.55);
-    static const std::vector<Color> kPaints = {
-        Color(0.86f, 0.86f, 0.85f), Color(0.60f, 0.62f, 0.65f), Color(0.08f, 0.08f, 0.09f),
-        Color(0.62f, 0.08f, 0.07f), Color(0.10f, 0.22f, 0.52f), Color(0.26f, 0.27f, 0.29f),
-        Color(0.16f, 0.32f, 0.20f), Color(0.80f, 0.66f, 0.22f), Color(0.45f, 0.30f, 0.20f)};
+    static const std::vector<Color> kPaints = {Color(0.86f, 0.86f, 0.85f),
+                                               Color(0.60f, 0.62f, 0.65f),
+                                               Color(0.08f, 0.08f, 0.09f),
+                                               Color(0.62f, 0.08f, 0.07f),
+                                               Color(0.10f, 0.22f, 0.52f),
+                                               Color(0.26f, 0.27f, 0.29f),
+                                               Color(0.16f, 0.32f, 0.20f),
+                                               Color(0.80f, 0.66f, 0.22f),
+                                               Color(0.45f, 0.30f, 0.20f)};
     const Color paint = rng_.Pick(kPaints);
     const int side = AddMat(Pattern::kCarPaint, paint, paint, 1.0f);
     const int top = AddMat(Pattern::kCarPaint, paint, paint, 0.0f);
@@ -222,14 +248,17 @@ class Builder {
     obj.l = 0.6;
     obj.w = 0.66;
     obj.h = 1.75;
-    static const std::vector<Color> kClothes = {
-        Color(0.15f, 0.2f, 0.45f), Color(0.7f, 0.15f, 0.12f), Color(0.2f, 0.2f, 0.22f),
-        Color(0.85f, 0.85f, 0.8f), Color(0.2f, 0.45f, 0.25f), Color(0.75f, 0.6f, 0.2f)};
+    static const std::vector<Color> kClothes = {Color(0.15f, 0.2f, 0.45f),
+                                                Color(0.7f, 0.15f, 0.12f),
+                                                Color(0.2f, 0.2f, 0.22f),
+                                                Color(0.85f, 0.85f, 0.8f),
+                                                Color(0.2f, 0.45f, 0.25f),
+                                                Color(0.75f, 0.6f, 0.2f)};
     const Color shirt = rng_.Pick(kClothes), shirt2 = rng_.Pick(kClothes);
     const int top = AddMat(Pattern::kCloth, shirt, shirt2, rng_.Chance(0.5) ? 0.12f : 0.0f);
     const int legs = AddMat(Pattern::kCloth, rng_.Pick(kClothes) * 0.7f, shirt2, 0.0f);
-    const Color skin = rng_.Pick(std::vector<Color>{Color(0.85f, 0.68f, 0.55f), Color(0.55f, 0.38f, 0.28f),
-                                                    Color(0.35f, 0.24f, 0.18f)});
+    const Color skin = rng_.Pick(std::vector<Color>{
+        Color(0.85f, 0.68f, 0.55f), Color(0.55f, 0.38f, 0.28f), Color(0.35f, 0.24f, 0.18f)});
     const int head = AddMat(Pattern::kSkin, skin, Color(0.12f, 0.09f, 0.06f));
     const int bag = AddMat(Pattern::kCloth, rng_.Pick(kClothes) * 0.6f, shirt, 0.0f);
     auto part = [&](double x0, double x1, double y0, double y1, double z0, double z1, int m) {
@@ -253,7 +282,11 @@ class Builder {
   }
 
   // Parked cars in a row along z at lateral x, heading yaw (0 = +z, π = -z).
-  void ParkedRow(double x, double z0, double z1, double yaw, double gap_prob,
+  void ParkedRow(double x,
+                 double z0,
+                 double z1,
+                 double yaw,
+                 double gap_prob,
                  const std::vector<Interval>& exclusions) {
     double z = z0 + rng_.Uniform(0.0, 3.0);
     while (z < z1) {
@@ -277,15 +310,16 @@ class Builder {
   // smaller x), from z0 to z1, with a door opening at [door_z0, door_z0 + door_w].
   // The door turns about its vertical hinge (at door_z0) from closed to
   // `angle1` between t0 and t1 (negative angles open towards the street).
-  void DoorWall(double x_face, double z0, double z1, double door_z0, double angle1, double t0,
-                double t1) {
+  void DoorWall(
+      double x_face, double z0, double z1, double door_z0, double angle1, double t0, double t1) {
     Material brick;
     brick.pattern = Pattern::kBrick;
     brick.color = Color(0.55f, 0.25f, 0.17f);
     brick.color2 = Color(0.7f, 0.68f, 0.62f);
     brick.seed = rng_.Seed();
     const int b = scene_->AddMaterial(brick);
-    const int interior = AddMat(Pattern::kInterior, Color(0.07f, 0.065f, 0.06f), Color(0.1f, 0.1f, 0.1f));
+    const int interior =
+        AddMat(Pattern::kInterior, Color(0.07f, 0.065f, 0.06f), Color(0.1f, 0.1f, 0.1f));
     const uint16_t wall_id = PanopticId(kClassWall, 0);
     const double depth = 12.0, height = 9.0;
     const double door_w = 1.1, door_h = 2.25;
@@ -293,9 +327,16 @@ class Builder {
     const double x1 = x_face + depth;
     const double dz1 = door_z0 + door_w;
     // Left and right pieces; their faces towards the opening are the vestibule.
-    StaticBox(x_face, x1, floor, height, z0, door_z0, {b, b, -1, roof_material_, interior, b}, wall_id);
+    StaticBox(
+        x_face, x1, floor, height, z0, door_z0, {b, b, -1, roof_material_, interior, b}, wall_id);
     StaticBox(x_face, x1, floor, height, dz1, z1, {b, b, -1, roof_material_, b, interior}, wall_id);
-    StaticBox(x_face, x1, floor + door_h, height, door_z0, dz1, {b, b, interior, roof_material_, b, b},
+    StaticBox(x_face,
+              x1,
+              floor + door_h,
+              height,
+              door_z0,
+              dz1,
+              {b, b, interior, roof_material_, b, b},
               wall_id);
     // Back of the vestibule, 1.5 m deep.
     Quad back;
@@ -331,8 +372,8 @@ class Builder {
     const SE3d closed(RotY(-M_PI / 2.0),
                       Eigen::Vector3d(x_mid, G - floor - 0.005, hinge_z + 0.5 * door.l));
     door.kind = MotionKind::kRevolute;
-    door.revolute = RevoluteMotion(closed, Eigen::Vector3d(x_mid, G, hinge_z), Eigen::Vector3d::UnitY(),
-                                   0.0, angle1, t0, t1);
+    door.revolute = RevoluteMotion(
+        closed, Eigen::Vector3d(x_mid, G, hinge_z), Eigen::Vector3d::UnitY(), 0.0, angle1, t0, t1);
     scene_->objects.push_back(std::move(door));
   }
 
@@ -349,12 +390,19 @@ class Builder {
 
   // Buildings whose facade lies on the plane (along_z ? x : z) = face, the
   // body extending towards `dir` (±1), spanning [a0, a1] along the street.
-  void BuildingRow(bool along_z, double face, double dir, double a0, double a1,
+  void BuildingRow(bool along_z,
+                   double face,
+                   double dir,
+                   double a0,
+                   double a1,
                    const std::vector<Interval>& skip) {
-    static const std::vector<Color> kWalls = {
-        Color(0.78f, 0.72f, 0.6f), Color(0.62f, 0.6f, 0.58f), Color(0.62f, 0.36f, 0.28f),
-        Color(0.85f, 0.82f, 0.74f), Color(0.55f, 0.62f, 0.68f), Color(0.9f, 0.88f, 0.85f),
-        Color(0.7f, 0.55f, 0.42f)};
+    static const std::vector<Color> kWalls = {Color(0.78f, 0.72f, 0.6f),
+                                              Color(0.62f, 0.6f, 0.58f),
+                                              Color(0.62f, 0.36f, 0.28f),
+                                              Color(0.85f, 0.82f, 0.74f),
+                                              Color(0.55f, 0.62f, 0.68f),
+                                              Color(0.9f, 0.88f, 0.85f),
+                                              Color(0.7f, 0.55f, 0.42f)};
     double a = a0;
     while (a < a1 - 3.0) {
       const double width = std::min(rng_.Uniform(8.0, 22.0), a1 - a);
@@ -391,10 +439,14 @@ class Builder {
 
   // Trees and lamp poles on a line at `line` (x if along_z else z) from a0 to
   // a1; `street` (±1) points towards the street.
-  void Furniture(bool along_z, double line, double a0, double a1, double street,
+  void Furniture(bool along_z,
+                 double line,
+                 double a0,
+                 double a1,
+                 double street,
                  const std::vector<Interval>& skip) {
-    static const std::vector<Color> kLeaves = {Color(0.2f, 0.36f, 0.12f), Color(0.28f, 0.42f, 0.16f),
-                                               Color(0.16f, 0.3f, 0.14f)};
+    static const std::vector<Color> kLeaves = {
+        Color(0.2f, 0.36f, 0.12f), Color(0.28f, 0.42f, 0.16f), Color(0.16f, 0.3f, 0.14f)};
     const int bark = AddMat(Pattern::kBark, Color(0.3f, 0.22f, 0.16f), Color(0.2f, 0.15f, 0.1f));
     const int metal = AddMat(Pattern::kMetal, Color(0.42f, 0.44f, 0.46f), Color(0.3f, 0.3f, 0.3f));
     double a = a0 + rng_.Uniform(0.0, 8.0);
@@ -403,8 +455,14 @@ class Builder {
         a += 2.0;
         continue;
       }
-      auto box = [&](double along0, double along1, double h0, double h1, double across0, double across1,
-                     std::array<int, 6> m, uint16_t id) {
+      auto box = [&](double along0,
+                     double along1,
+                     double h0,
+                     double h1,
+                     double across0,
+                     double across1,
+                     std::array<int, 6> m,
+                     uint16_t id) {
         if (along_z) {
           StaticBox(line + across0, line + across1, h0, h1, along0, along1, m, id);
         } else {
@@ -415,12 +473,26 @@ class Builder {
         const Color leaf = rng_.Pick(kLeaves);
         const int fol = AddMat(Pattern::kFoliage, leaf, leaf * 1.6f);
         const uint16_t veg = PanopticId(kClassVegetation, 0);
-        box(a - 0.15, a + 0.15, kCurbHeight, 3.0, -0.15, 0.15, {bark, bark, -1, bark, bark, bark}, veg);
+        box(a - 0.15,
+            a + 0.15,
+            kCurbHeight,
+            3.0,
+            -0.15,
+            0.15,
+            {bark, bark, -1, bark, bark, bark},
+            veg);
         const double r = rng_.Uniform(1.1, 1.6);
         const double top = rng_.Uniform(4.6, 5.6);
         box(a - r, a + r, 2.4, top, -r, r, {fol, fol, fol, fol, fol, fol}, veg);
         const double r2 = 0.65 * r;
-        box(a - r2 + 0.2, a + r2 + 0.2, top, top + 1.0, -r2, r2, {fol, fol, -1, fol, fol, fol}, veg);
+        box(a - r2 + 0.2,
+            a + r2 + 0.2,
+            top,
+            top + 1.0,
+            -r2,
+            r2,
+            {fol, fol, -1, fol, fol, fol},
+            veg);
       } else {
         const uint16_t pole = PanopticId(kClassPole, 0);
         const std::array<int, 6> m = {metal, metal, metal, metal, metal, metal};
@@ -483,9 +555,10 @@ void Walkers(Builder* b, int count, double z0, double z1) {
 PlanarMotion WalkAndStop(double x, double z, double yaw, double speed, double distance, double y) {
   const double stop_time = 0.5;
   const double stop_distance = 0.5 * speed * stop_time;
-  return PlanarMotion(PlanarState{x, z, yaw, speed},
-                      {{(distance - stop_distance) / speed, 0.0, 0.0}, {stop_time, -speed / stop_time, 0.0}},
-                      y);
+  return PlanarMotion(
+      PlanarState{x, z, yaw, speed},
+      {{(distance - stop_distance) / speed, 0.0, 0.0}, {stop_time, -speed / stop_time, 0.0}},
+      y);
 }
 
 // Distance the camera travels in the sequence (to size the street).
@@ -506,14 +579,16 @@ void BuildDriving(Scenario* sc, Builder* b) {
   StraightStreet(b, -40.0, z1);
   // Leading cars in the camera's lane.
   b->AddCar(PlanarMotion(PlanarState{0.0, 18.0, 0.0, 10.0},
-                         {{3.0, 0.5, 0.0}, {3.0, -0.8, 0.0}, {4.0, 0.0, 0.0}, {4.0, 0.3, 0.0}}, G));
-  b->AddCar(PlanarMotion(PlanarState{0.1, 48.0, 0.0, 11.0}, {{5.0, 0.0, 0.0}, {5.0, -0.1, 0.0}}, G));
+                         {{3.0, 0.5, 0.0}, {3.0, -0.8, 0.0}, {4.0, 0.0, 0.0}, {4.0, 0.3, 0.0}},
+                         G));
+  b->AddCar(
+      PlanarMotion(PlanarState{0.1, 48.0, 0.0, 11.0}, {{5.0, 0.0, 0.0}, {5.0, -0.1, 0.0}}, G));
   // Oncoming traffic, spaced along the street, all at one speed.
   double z = 45.0;
   const double speed = b->rng().Uniform(8.0, 12.0);
   while (z < 10.0 * t_end + 150.0 && z < z1) {
-    b->AddCar(PlanarMotion(PlanarState{kOncomingLane + b->rng().Uniform(-0.2, 0.2), z, M_PI, speed},
-                           {}, G),
+    b->AddCar(PlanarMotion(
+                  PlanarState{kOncomingLane + b->rng().Uniform(-0.2, 0.2), z, M_PI, speed}, {}, G),
               b->rng().Chance(0.15));
     z += b->rng().Uniform(25.0, 50.0);
   }
@@ -529,9 +604,11 @@ void BuildIntersection(Scenario* sc, Builder* b) {
   // 8 -> 5 m/s over 13 m, then 5 m/s to the turn, quarter circle, accelerate
   // to 9 m/s, the speed of the crossing cars it then follows.
   const double straight = z_turn - 13.0;
-  sc->camera_motion = CameraMotion(
-      8.0, {{2.0, -1.5, 0.0}, {straight / 5.0, 0.0, 0.0},
-            {M_PI / 2.0 * turn_radius / 5.0, 0.0, 1.0 / turn_radius}, {4.0, 1.0, 0.0}});
+  sc->camera_motion = CameraMotion(8.0,
+                                   {{2.0, -1.5, 0.0},
+                                    {straight / 5.0, 0.0, 0.0},
+                                    {M_PI / 2.0 * turn_radius / 5.0, 0.0, 1.0 / turn_radius},
+                                    {4.0, 1.0, 0.0}});
   const double t_end = sc->TimeOf(sc->num_frames);
   const PlanarState end = sc->camera_motion.StateAt(t_end);
   const double x_far = std::max(120.0, end.x + 150.0);
@@ -569,8 +646,10 @@ void BuildIntersection(Scenario* sc, Builder* b) {
   }
   // Pedestrians on the corners.
   Walkers(b, 4, 0.0, south - 5.0);
-  b->AddPedestrian(PlanarMotion(PlanarState{9.0, north + 1.5, M_PI / 2.0, 1.2}, {}, G - kCurbHeight));
-  b->AddPedestrian(PlanarMotion(PlanarState{20.0, south - 1.2, -M_PI / 2.0, 1.3}, {}, G - kCurbHeight));
+  b->AddPedestrian(
+      PlanarMotion(PlanarState{9.0, north + 1.5, M_PI / 2.0, 1.2}, {}, G - kCurbHeight));
+  b->AddPedestrian(
+      PlanarMotion(PlanarState{20.0, south - 1.2, -M_PI / 2.0, 1.3}, {}, G - kCurbHeight));
 }
 
 void BuildStationaryThenAccelerating(Scenario* sc, Builder* b) {
@@ -592,9 +671,12 @@ void BuildStationaryThenAccelerating(Scenario* sc, Builder* b) {
   const double stream_speed = 11.0;
   double start = 20.0;
   for (int i = 0; i < 16; ++i) {
-    b->AddCar(PlanarMotion(
-                  PlanarState{kOncomingLane + b->rng().Uniform(-0.3, 0.1), start, 0.0, stream_speed}, {}, G),
-              i % 5 == 2);
+    b->AddCar(
+        PlanarMotion(
+            PlanarState{kOncomingLane + b->rng().Uniform(-0.3, 0.1), start, 0.0, stream_speed},
+            {},
+            G),
+        i % 5 == 2);
     start -= b->rng().Uniform(11.0, 17.0);
   }
   // Pedestrians cross the camera's lane between the camera and the car
@@ -616,7 +698,8 @@ void BuildFollowBraking(Scenario* sc, Builder* b) {
   const double z1 = Travel(sc->camera_motion, t_end) + 200.0;
   StraightStreet(b, -40.0, z1);
   b->AddCar(PlanarMotion(PlanarState{0.0, 15.0, 0.0, 10.0},
-                         {{2.0, 0.0, 0.0}, {2.5, -4.0, 0.0}, {2.0, 0.0, 0.0}, {5.0, 2.0, 0.0}}, G));
+                         {{2.0, 0.0, 0.0}, {2.5, -4.0, 0.0}, {2.0, 0.0, 0.0}, {5.0, 2.0, 0.0}},
+                         G));
   b->AddCar(PlanarMotion(PlanarState{kOncomingLane, 80.0, M_PI, 9.0}, {}, G));
   b->AddCar(PlanarMotion(PlanarState{kOncomingLane, 150.0, M_PI, 11.0}, {}, G));
   b->ParkedRow(kParkRight, -30.0, z1 - 20.0, 0.0, 0.03, {});
@@ -634,8 +717,13 @@ void BuildDoor(Scenario* sc, Builder* b) {
   StraightStreet(b, -40.0, z1, wall_zone);
   // The door opens towards the street by 80° during the middle of the sequence.
   const double t0 = 0.2 * t_end, t1 = 0.7 * t_end;
-  b->DoorWall(kRoadRight + kSidewalkWidth, door_z - 9.0, door_z + 10.0, door_z, -80.0 * M_PI / 180.0,
-              t0, t1);
+  b->DoorWall(kRoadRight + kSidewalkWidth,
+              door_z - 9.0,
+              door_z + 10.0,
+              door_z,
+              -80.0 * M_PI / 180.0,
+              t0,
+              t1);
   b->ParkedRow(kParkRight, -30.0, z1 - 20.0, 0.0, 0.2, {{door_z - 12.0, door_z + 6.0}});
   b->ParkedRow(kParkLeft, -30.0, z1 - 20.0, M_PI, 0.2, {});
   b->AddPedestrian(PlanarMotion(PlanarState{-9.0, 6.0, 0.0, 1.1}, {}, G - kCurbHeight));
@@ -648,17 +736,21 @@ struct Entry {
   void (*build)(Scenario*, Builder*);
 };
 const Entry kEntries[] = {
-    {"static_street", "camera drives along a street lined with parked cars, nothing moves",
+    {"static_street",
+     "camera drives along a street lined with parked cars, nothing moves",
      &BuildStaticStreet},
     {"driving", "camera at 10 m/s with leading and oncoming cars and pedestrians", &BuildDriving},
-    {"intersection", "camera slows down and turns right at a crossing; crossing cars",
+    {"intersection",
+     "camera slows down and turns right at a crossing; crossing cars",
      &BuildIntersection},
     {"stationary_then_accelerating",
      "camera still for 3 s then accelerating; cars pass close (many dynamic pixels)",
      &BuildStationaryThenAccelerating},
-    {"follow_braking", "following a car that brakes to a stop and restarts; many parked cars",
+    {"follow_braking",
+     "following a car that brakes to a stop and restarts; many parked cars",
      &BuildFollowBraking},
-    {"door", "a door on a revolute joint opens in a brick wall; camera creeping forward",
+    {"door",
+     "a door on a revolute joint opens in a brick wall; camera creeping forward",
      &BuildDoor},
 };
 
@@ -684,7 +776,8 @@ std::vector<ScenarioInfo> ListScenarios() {
 
 absl::StatusOr<Scenario> MakeScenario(const std::string& name, uint32_t seed, int num_frames) {
   if (num_frames < 1) {
-    return absl::InvalidArgumentError(absl::StrCat("number of frames must be >= 1, got ", num_frames));
+    return absl::InvalidArgumentError(
+        absl::StrCat("number of frames must be >= 1, got ", num_frames));
   }
   for (const Entry& e : kEntries) {
     if (name != e.name) continue;
@@ -702,7 +795,8 @@ absl::StatusOr<Scenario> MakeScenario(const std::string& name, uint32_t seed, in
   }
   std::string names;
   for (const Entry& e : kEntries) absl::StrAppend(&names, names.empty() ? "" : ", ", e.name);
-  return absl::InvalidArgumentError(absl::StrCat("unknown scenario '", name, "' (known: ", names, ")"));
+  return absl::InvalidArgumentError(
+      absl::StrCat("unknown scenario '", name, "' (known: ", names, ")"));
 }
 
 }  // namespace twist::sim

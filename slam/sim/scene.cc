@@ -2,7 +2,9 @@
 
 namespace twist::sim {
 
-void AppendBoxQuads(const BoxPart& box, const geometry::SE3d& world_from_box, uint16_t panoptic,
+void AppendBoxQuads(const BoxPart& box,
+                    const geometry::SE3d& world_from_box,
+                    uint16_t panoptic,
                     std::vector<Quad>* quads) {
   const Eigen::Vector3d& a = box.min;
   const Eigen::Vector3d& b = box.max;
@@ -40,8 +42,10 @@ void AppendBoxQuads(const BoxPart& box, const geometry::SE3d& world_from_box, ui
       q.tex_u0 = static_cast<float>(a.x());
       q.tex_v0 = static_cast<float>(f == kFaceTop ? a.z() : -b.z());
     } else {
-      q.tex_u0 = static_cast<float>(f == kFacePosX ? a.z() : f == kFaceNegX ? -b.z()
-                                    : f == kFacePosZ ? -b.x() : a.x());
+      q.tex_u0 = static_cast<float>(f == kFacePosX   ? a.z()
+                                    : f == kFaceNegX ? -b.z()
+                                    : f == kFacePosZ ? -b.x()
+                                                     : a.x());
       q.tex_v0 = static_cast<float>(-b.y());
     }
     quads->push_back(q);

@@ -7,12 +7,11 @@
 // x ∈ [-l/2, l/2], y ∈ [-h, 0], z ∈ [-w/2, w/2]; all parts lie inside it.
 #pragma once
 
+#include <Eigen/Core>
 #include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
-
-#include <Eigen/Core>
 
 #include "slam/geometry/se3.h"
 #include "slam/sim/motion.h"
@@ -90,7 +89,9 @@ struct BoxPart {
 };
 
 // Appends the drawn faces of `box`, transformed by world_from_box.
-void AppendBoxQuads(const BoxPart& box, const geometry::SE3d& world_from_box, uint16_t panoptic,
+void AppendBoxQuads(const BoxPart& box,
+                    const geometry::SE3d& world_from_box,
+                    uint16_t panoptic,
                     std::vector<Quad>* quads);
 
 // A painted road marking: a stripe in the ground plane (world x, z) starting
@@ -109,7 +110,7 @@ struct Marking {
 enum class MotionKind { kPlanar, kRevolute };
 
 struct SceneObject {
-  int track_id = 0;    // == panoptic instance id, unique in the sequence
+  int track_id = 0;  // == panoptic instance id, unique in the sequence
   int class_id = kClassCar;
   std::string kitti_type = "Car";
   double h = 1.5, w = 1.8, l = 4.2;  // label box
@@ -131,7 +132,8 @@ struct Scene {
   std::vector<Quad> static_quads;  // world frame
   std::vector<Marking> markings;
   std::vector<SceneObject> objects;
-  Eigen::Vector3d sun_direction = Eigen::Vector3d(-0.35, -0.85, 0.4).normalized();  // towards the sun
+  Eigen::Vector3d sun_direction =
+      Eigen::Vector3d(-0.35, -0.85, 0.4).normalized();  // towards the sun
   uint32_t sky_seed = 1;
 
   int AddMaterial(const Material& m) {

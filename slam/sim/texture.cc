@@ -22,8 +22,15 @@ Color Mix(const Color& a, const Color& b, float t) { return a + (b - a) * t; }
 // Round spots scattered on a grid of `cell` metres: each cell holds a spot with
 // probability `prob`, radius in [rmin, rmax]. Returns the box-filtered coverage
 // and the spot's random value in *value.
-float Spots(float x, float y, float cell, float prob, float rmin, float rmax, float fw,
-            uint32_t seed, float* value) {
+float Spots(float x,
+            float y,
+            float cell,
+            float prob,
+            float rmin,
+            float rmax,
+            float fw,
+            uint32_t seed,
+            float* value) {
   const float cx = std::floor(x / cell), cy = std::floor(y / cell);
   const int32_t ix = static_cast<int32_t>(cx), iy = static_cast<int32_t>(cy);
   if (UnitHash(ix, iy, seed) >= prob) return 0.0f;
@@ -64,7 +71,8 @@ Color Asphalt(const Material& m, const SurfaceSample& p, const std::vector<Marki
   Color c = m.color * (1.0f + 0.10f * patches + 0.12f * grain + 0.3f * gravel);
   c = Mix(c, m.color * (spot_value < 0.5f ? 0.55f : 1.35f), 0.8f * spot);
   for (const Marking& mk : markings) {
-    const float rx = x - static_cast<float>(mk.start.x()), rz = z - static_cast<float>(mk.start.y());
+    const float rx = x - static_cast<float>(mk.start.x()),
+                rz = z - static_cast<float>(mk.start.y());
     const float dx = static_cast<float>(mk.dir.x()), dz = static_cast<float>(mk.dir.y());
     const float along = rx * dx + rz * dz;
     const float across = -rx * dz + rz * dx;
@@ -75,8 +83,8 @@ Color Asphalt(const Material& m, const SurfaceSample& p, const std::vector<Marki
     float cov = FilteredBox(across, -hw, hw, fw_across) *
                 FilteredBox(along, 0.0f, static_cast<float>(mk.length), fw_along);
     if (mk.duty < 1.0) {
-      cov *= FilteredPulseTrain(along, static_cast<float>(mk.period), static_cast<float>(mk.duty),
-                                fw_along);
+      cov *= FilteredPulseTrain(
+          along, static_cast<float>(mk.period), static_cast<float>(mk.duty), fw_along);
     }
     // Worn paint.
     cov *= Clamp01(0.85f + 0.3f * Fbm(x, z, 4.0f, 3, 0.5f, fw, m.seed + 300u));
@@ -89,11 +97,13 @@ Color Paving(const Material& m, const SurfaceSample& p) {
   const float x = p.u0 + p.s, y = p.v0 + p.t;
   const float tile = m.p0 > 0.0f ? m.p0 : 0.4f;
   const float duty = 1.0f - 0.02f / tile;
-  const float cover = FilteredPulseTrain(x, tile, duty, p.fw_s) *
-                      FilteredPulseTrain(y, tile, duty, p.fw_t);
+  const float cover =
+      FilteredPulseTrain(x, tile, duty, p.fw_s) * FilteredPulseTrain(y, tile, duty, p.fw_t);
   const float fw = std::max(p.fw_s, p.fw_t);
   const float var = (UnitHash(static_cast<int32_t>(std::floor(x / tile)),
-                              static_cast<int32_t>(std::floor(y / tile)), m.seed) - 0.5f) *
+                              static_cast<int32_t>(std::floor(y / tile)),
+                              m.seed) -
+                     0.5f) *
                     BandWeight(fw / tile * 0.5f);
   const float grain = Fbm(x, y, 3.0f, 5, 0.6f, fw, m.seed + 5u);
   const Color tile_color = m.color * (1.0f + 0.25f * var + 0.12f * grain);
@@ -128,8 +138,9 @@ Color Facade(const Material& m, const SurfaceSample& p) {
     const float outer = FilteredPulseTrain(xo, period, duty, p.fw_s) *
                         FilteredPulseTrain(yo, floor_h, 1.6f / floor_h, p.fw_t);
     const float frame = 0.09f;
-    const float inner = FilteredPulseTrain(xo - frame, period, duty - 2.0f * frame / period, p.fw_s) *
-                        FilteredPulseTrain(yo - frame, floor_h, (1.6f - 2.0f * frame) / floor_h, p.fw_t);
+    const float inner =
+        FilteredPulseTrain(xo - frame, period, duty - 2.0f * frame / period, p.fw_s) *
+        FilteredPulseTrain(yo - frame, floor_h, (1.6f - 2.0f * frame) / floor_h, p.fw_t);
     const int32_t wi = static_cast<int32_t>(std::floor(xo / period));
     const int32_t wj = static_cast<int32_t>(std::floor(yo / floor_h));
     const float fade = BandWeight(fw / period);
@@ -149,16 +160,19 @@ Color Facade(const Material& m, const SurfaceSample& p) {
     // Ground floor: shop windows with a sign band.
     const float shop = 4.5f;
     const float xo = x + 0.3f * shop;
-    const float glass_cov = FilteredPulseTrain(xo, shop, 0.72f, p.fw_s) * FilteredBox(h, 0.45f, 3.1f, p.fw_t);
+    const float glass_cov =
+        FilteredPulseTrain(xo, shop, 0.72f, p.fw_s) * FilteredBox(h, 0.45f, 3.1f, p.fw_t);
     const int32_t si = static_cast<int32_t>(std::floor(xo / shop));
     const float fade = BandWeight(fw / shop);
     Color inside = Color(0.12f, 0.12f, 0.13f) *
                    (1.0f + 1.6f * std::max(0.0f, Fbm(x, h, 1.3f, 5, 0.65f, fw, m.seed + 51u)));
     // Shelves and goods.
-    inside = Mix(inside, Color(0.6f, 0.45f, 0.3f),
+    inside = Mix(inside,
+                 Color(0.6f, 0.45f, 0.3f),
                  0.5f * FilteredPulseTrain(h, 0.55f, 0.12f, p.fw_t) * fade);
     const float sign = FilteredBox(h, 3.3f, 3.9f, p.fw_t);
-    const Color sign_color(UnitHash(si, 1, m.seed) * 0.8f + 0.1f, UnitHash(si, 2, m.seed) * 0.8f + 0.1f,
+    const Color sign_color(UnitHash(si, 1, m.seed) * 0.8f + 0.1f,
+                           UnitHash(si, 2, m.seed) * 0.8f + 0.1f,
                            UnitHash(si, 3, m.seed) * 0.8f + 0.1f);
     const float letters = Glyphs(x, h - 3.42f, 0.12f, fw, m.seed + static_cast<uint32_t>(si)) *
                           FilteredBox(h, 3.42f, 3.78f, p.fw_t) *
@@ -179,8 +193,10 @@ Color Brick(const Material& m, const SurfaceSample& p) {
   const float xs = x + (static_cast<int>(row) % 2 != 0 ? 0.5f * bw : 0.0f);
   const float cover = FilteredPulseTrain(xs, bw, 1.0f - mortar / bw, p.fw_s) *
                       FilteredPulseTrain(y, bh, 1.0f - mortar / bh, p.fw_t);
-  const float var = (UnitHash(static_cast<int32_t>(std::floor(xs / bw)), static_cast<int32_t>(row),
-                              m.seed) - 0.5f) * BandWeight(fw / bh * 0.5f);
+  const float var =
+      (UnitHash(static_cast<int32_t>(std::floor(xs / bw)), static_cast<int32_t>(row), m.seed) -
+       0.5f) *
+      BandWeight(fw / bh * 0.5f);
   const float grain = Fbm(x, y, 4.0f, 5, 0.6f, fw, m.seed + 9u);
   const float dirt = Fbm(x, y, 0.3f, 3, 0.5f, fw, m.seed + 19u);
   const Color brick = m.color * (1.0f + 0.35f * var + 0.1f * grain + 0.12f * dirt);
@@ -201,7 +217,8 @@ Color Door(const Material& m, const SurfaceSample& p) {
     panel += Rect(s, t, mid_s + 0.5f * b, p.su - b, b, mid_t - 0.5f * b, p.fw_s, p.fw_t);
     panel += Rect(s, t, b, mid_s - 0.5f * b, mid_t + 0.5f * b, p.sv - b, p.fw_s, p.fw_t);
     panel += Rect(s, t, mid_s + 0.5f * b, p.su - b, mid_t + 0.5f * b, p.sv - b, p.fw_s, p.fw_t);
-    const float edge = Rect(s, t, b - 0.03f, p.su - b + 0.03f, b - 0.03f, p.sv - b + 0.03f, p.fw_s, p.fw_t);
+    const float edge =
+        Rect(s, t, b - 0.03f, p.su - b + 0.03f, b - 0.03f, p.sv - b + 0.03f, p.fw_s, p.fw_t);
     c = Mix(c, c * 0.6f, edge - panel);
     c = Mix(c, m.color2, Clamp01(panel) * 0.3f);
     // Handle and lock plate.
@@ -226,8 +243,9 @@ Color CarPaint(const Material& m, const SurfaceSample& p) {
     const float seams = FilteredBox(s, 0.30f * p.su - 0.012f, 0.30f * p.su + 0.012f, p.fw_s) +
                         FilteredBox(s, 0.56f * p.su - 0.012f, 0.56f * p.su + 0.012f, p.fw_s);
     c = Mix(c, c * 0.35f, Clamp01(seams) * FilteredBox(t, 0.05f, p.sv - 0.02f, p.fw_t));
-    const float handles = Rect(s, t, 0.33f * p.su, 0.33f * p.su + 0.14f, p.sv - 0.17f, p.sv - 0.12f, p.fw_s, p.fw_t) +
-                          Rect(s, t, 0.59f * p.su, 0.59f * p.su + 0.14f, p.sv - 0.17f, p.sv - 0.12f, p.fw_s, p.fw_t);
+    const float handles =
+        Rect(s, t, 0.33f * p.su, 0.33f * p.su + 0.14f, p.sv - 0.17f, p.sv - 0.12f, p.fw_s, p.fw_t) +
+        Rect(s, t, 0.59f * p.su, 0.59f * p.su + 0.14f, p.sv - 0.17f, p.sv - 0.12f, p.fw_s, p.fw_t);
     c = Mix(c, Color(0.08f, 0.08f, 0.08f), Clamp01(handles));
     const float line = FilteredBox(t, 0.42f * p.sv, 0.42f * p.sv + 0.03f, p.fw_t);
     c = Mix(c, c * 1.3f, line);
@@ -241,12 +259,15 @@ Color CarGlass(const Material& m, const SurfaceSample& p) {
   const float s = p.s, t = p.t;
   const float x = p.u0 + s, y = p.v0 + t;
   const float fw = std::max(p.fw_s, p.fw_t);
-  Color glass = Color(0.07f, 0.09f, 0.11f) *
-                (1.0f + 1.2f * std::max(0.0f, Fbm(x * 0.7f + y, y, 1.5f, 4, 0.55f, fw, m.seed + 9u)));
+  Color glass =
+      Color(0.07f, 0.09f, 0.11f) *
+      (1.0f + 1.2f * std::max(0.0f, Fbm(x * 0.7f + y, y, 1.5f, 4, 0.55f, fw, m.seed + 9u)));
   // Pillars at both ends and in the middle (body colour), frame at the bottom.
-  const float pillar = FilteredBox(s, -1.0f, 0.08f, p.fw_s) + FilteredBox(s, p.su - 0.08f, p.su + 1.0f, p.fw_s) +
-                       (p.su > 1.6f ? FilteredBox(s, 0.47f * p.su, 0.47f * p.su + 0.09f, p.fw_s) : 0.0f);
-  const float frame = FilteredBox(t, -1.0f, 0.06f, p.fw_t) + FilteredBox(t, p.sv - 0.05f, p.sv + 1.0f, p.fw_t);
+  const float pillar =
+      FilteredBox(s, -1.0f, 0.08f, p.fw_s) + FilteredBox(s, p.su - 0.08f, p.su + 1.0f, p.fw_s) +
+      (p.su > 1.6f ? FilteredBox(s, 0.47f * p.su, 0.47f * p.su + 0.09f, p.fw_s) : 0.0f);
+  const float frame =
+      FilteredBox(t, -1.0f, 0.06f, p.fw_t) + FilteredBox(t, p.sv - 0.05f, p.sv + 1.0f, p.fw_t);
   return Mix(glass, m.color2, Clamp01(pillar + frame));
 }
 
@@ -300,7 +321,8 @@ Color Foliage(const Material& m, const SurfaceSample& p) {
 
 }  // namespace
 
-Eigen::Vector3f ShadeSurface(const Material& m, const SurfaceSample& p,
+Eigen::Vector3f ShadeSurface(const Material& m,
+                             const SurfaceSample& p,
                              const std::vector<Marking>& markings) {
   const float fw = std::max(p.fw_s, p.fw_t);
   switch (m.pattern) {
@@ -331,11 +353,15 @@ Eigen::Vector3f ShadeSurface(const Material& m, const SurfaceSample& p,
     case Pattern::kTire:
       return Tire(m, p);
     case Pattern::kMetal:
-      return m.color * (1.0f + 0.15f * Fbm((p.u0 + p.s) * 8.0f, (p.v0 + p.t) * 0.5f, 1.0f, 4, 0.5f,
-                                          fw * 8.0f, m.seed));
+      return m.color *
+             (1.0f +
+              0.15f *
+                  Fbm((p.u0 + p.s) * 8.0f, (p.v0 + p.t) * 0.5f, 1.0f, 4, 0.5f, fw * 8.0f, m.seed));
     case Pattern::kBark:
-      return m.color * (1.0f + 0.3f * Fbm((p.u0 + p.s) * 6.0f, (p.v0 + p.t) * 0.8f, 1.5f, 5, 0.6f,
-                                         fw * 6.0f, m.seed));
+      return m.color *
+             (1.0f +
+              0.3f *
+                  Fbm((p.u0 + p.s) * 6.0f, (p.v0 + p.t) * 0.8f, 1.5f, 5, 0.6f, fw * 6.0f, m.seed));
     case Pattern::kFoliage:
       return Foliage(m, p);
     case Pattern::kCloth: {

@@ -1,15 +1,14 @@
 #include "slam/sim/writer.h"
 
+#include <glog/logging.h>
 #include <stdlib.h>
 
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <vector>
-
-#include <glog/logging.h>
 #include <opencv2/imgcodecs.hpp>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
@@ -55,7 +54,8 @@ absl::Status WritePng(const fs::path& path, const cv::Mat& image, int compressio
 absl::Status MakeDirs(const fs::path& dir) {
   std::error_code ec;
   fs::create_directories(dir, ec);
-  if (ec) return absl::InternalError(absl::StrCat("cannot create ", dir.string(), ": ", ec.message()));
+  if (ec)
+    return absl::InternalError(absl::StrCat("cannot create ", dir.string(), ": ", ec.message()));
   return absl::OkStatus();
 }
 
@@ -63,14 +63,21 @@ absl::Status MakeDirs(const fs::path& dir) {
 // calibration last: a reader needs the calibration, so an interrupted move
 // never looks like a complete sequence.
 std::vector<fs::path> SequenceItems(const std::string& seq) {
-  return {fs::path("image_02") / seq,          fs::path("image_03") / seq,
-          fs::path("panoptic") / seq,          fs::path("label_02") / (seq + ".txt"),
-          fs::path("objects_gt") / (seq + ".txt"), fs::path("poses") / (seq + ".txt"),
-          fs::path("times") / (seq + ".txt"),  fs::path("calib") / (seq + ".txt")};
+  return {fs::path("image_02") / seq,
+          fs::path("image_03") / seq,
+          fs::path("panoptic") / seq,
+          fs::path("label_02") / (seq + ".txt"),
+          fs::path("objects_gt") / (seq + ".txt"),
+          fs::path("poses") / (seq + ".txt"),
+          fs::path("times") / (seq + ".txt"),
+          fs::path("calib") / (seq + ".txt")};
 }
 
-absl::Status WriteAll(const Scenario& sc, const fs::path& root, const WriteOptions& options,
-                      const std::function<void(int, int)>& progress, WriteStats* stats) {
+absl::Status WriteAll(const Scenario& sc,
+                      const fs::path& root,
+                      const WriteOptions& options,
+                      const std::function<void(int, int)>& progress,
+                      WriteStats* stats) {
   const std::string& seq = options.sequence;
   for (const char* d : {"image_02", "image_03", "panoptic"}) {
     if (auto st = MakeDirs(root / d / seq); !st.ok()) return st;
@@ -91,11 +98,14 @@ absl::Status WriteAll(const Scenario& sc, const fs::path& root, const WriteOptio
     renderer.RenderStereo(sc.scene, sc.TimeOf(i), world_from_camera, left, right, &scratch, &frame);
     render_ms.push_back(watch.ElapsedMs());
     const std::string name = absl::StrFormat("%06d.png", i);
-    if (auto st = WritePng(root / "image_02" / seq / name, frame.left, options.png_compression); !st.ok())
+    if (auto st = WritePng(root / "image_02" / seq / name, frame.left, options.png_compression);
+        !st.ok())
       return st;
-    if (auto st = WritePng(root / "image_03" / seq / name, frame.right, options.png_compression); !st.ok())
+    if (auto st = WritePng(root / "image_03" / seq / name, frame.right, options.png_compression);
+        !st.ok())
       return st;
-    if (auto st = WritePng(root / "panoptic" / seq / name, frame.panoptic, options.png_compression); !st.ok())
+    if (auto st = WritePng(root / "panoptic" / seq / name, frame.panoptic, options.png_compression);
+        !st.ok())
       return st;
     for (const FrameLabel& label : ComputeFrameLabels(sc, renderer, i, frame.panoptic)) {
       absl::StrAppend(&labels, FormatKittiLabel(i, label), "\n");
@@ -109,7 +119,8 @@ absl::Status WriteAll(const Scenario& sc, const fs::path& root, const WriteOptio
   if (auto st = WriteText(root / "objects_gt" / (seq + ".txt"), objects); !st.ok()) return st;
   if (auto st = WriteText(root / "poses" / (seq + ".txt"), poses); !st.ok()) return st;
   if (auto st = WriteText(root / "times" / (seq + ".txt"), times); !st.ok()) return st;
-  if (auto st = WriteText(root / "calib" / (seq + ".txt"), CalibrationText(sc.camera)); !st.ok()) return st;
+  if (auto st = WriteText(root / "calib" / (seq + ".txt"), CalibrationText(sc.camera)); !st.ok())
+    return st;
   if (auto st = WriteText(root / "classes.txt", ClassTableText()); !st.ok()) return st;
   if (stats != nullptr) {
     std::sort(render_ms.begin(), render_ms.end());
@@ -148,9 +159,27 @@ std::string CalibrationText(const geometry::StereoCamera& camera) {
   for (int i = 0; i < 9; ++i) {
     absl::StrAppend(&r_rect, i == 0 ? "" : " ", absl::StrFormat("%.12e", i % 4 == 0 ? 1.0 : 0.0));
   }
-  return absl::StrCat("P0: ", Row(p_left), "\n", "P1: ", Row(p_right), "\n", "P2: ", Row(p_left), "\n",
-                      "P3: ", Row(p_right), "\n", "R_rect: ", r_rect, "\n", "Tr_velo_cam: ", Row(velo),
-                      "\n", "Tr_imu_velo: ", Row(imu), "\n");
+  return absl::StrCat("P0: ",
+                      Row(p_left),
+                      "\n",
+                      "P1: ",
+                      Row(p_right),
+                      "\n",
+                      "P2: ",
+                      Row(p_left),
+                      "\n",
+                      "P3: ",
+                      Row(p_right),
+                      "\n",
+                      "R_rect: ",
+                      r_rect,
+                      "\n",
+                      "Tr_velo_cam: ",
+                      Row(velo),
+                      "\n",
+                      "Tr_imu_velo: ",
+                      Row(imu),
+                      "\n");
 }
 
 std::string ClassTableText() {
@@ -188,9 +217,11 @@ std::string ClassTableText() {
   return table->ToText();
 }
 
-absl::Status WriteSequence(const Scenario& scenario, const std::string& out_dir,
+absl::Status WriteSequence(const Scenario& scenario,
+                           const std::string& out_dir,
                            const WriteOptions& options,
-                           const std::function<void(int, int)>& progress, WriteStats* stats) {
+                           const std::function<void(int, int)>& progress,
+                           WriteStats* stats) {
   if (options.sequence.empty() || options.sequence.find('/') != std::string::npos) {
     return absl::InvalidArgumentError(absl::StrCat("bad sequence name '", options.sequence, "'"));
   }
@@ -205,8 +236,8 @@ absl::Status WriteSequence(const Scenario& scenario, const std::string& out_dir,
   if (merge) {
     for (const fs::path& item : SequenceItems(options.sequence)) {
       if (fs::exists(out / item, ec)) {
-        return absl::AlreadyExistsError(
-            absl::StrCat(out_dir, " already has sequence ", options.sequence, " (", item.string(), ")"));
+        return absl::AlreadyExistsError(absl::StrCat(
+            out_dir, " already has sequence ", options.sequence, " (", item.string(), ")"));
       }
     }
   }
@@ -214,11 +245,13 @@ absl::Status WriteSequence(const Scenario& scenario, const std::string& out_dir,
   fs::path parent = merge ? out : out.parent_path();
   if (parent.empty()) parent = ".";
   if (auto st = MakeDirs(parent); !st.ok()) return st;
-  std::string pattern = (parent / ((merge ? std::string(".") : out.filename().string()) + ".tmp-XXXXXX")).string();
+  std::string pattern =
+      (parent / ((merge ? std::string(".") : out.filename().string()) + ".tmp-XXXXXX")).string();
   std::vector<char> buf(pattern.begin(), pattern.end());
   buf.push_back('\0');
   if (mkdtemp(buf.data()) == nullptr) {
-    return absl::InternalError(absl::StrCat("cannot create a temporary directory in ", parent.string()));
+    return absl::InternalError(
+        absl::StrCat("cannot create a temporary directory in ", parent.string()));
   }
   const fs::path tmp(buf.data());
   absl::Status status = WriteAll(scenario, tmp, options, progress, stats);
@@ -228,8 +261,8 @@ absl::Status WriteSequence(const Scenario& scenario, const std::string& out_dir,
         MakeDirs((out / item).parent_path()).IgnoreError();
         fs::rename(tmp / item, out / item, ec);
         if (ec) {
-          status = absl::InternalError(absl::StrCat("cannot move ", item.string(), " into ", out_dir, ": ",
-                                                    ec.message()));
+          status = absl::InternalError(
+              absl::StrCat("cannot move ", item.string(), " into ", out_dir, ": ", ec.message()));
           break;
         }
       }
@@ -240,8 +273,8 @@ absl::Status WriteSequence(const Scenario& scenario, const std::string& out_dir,
       if (exists) fs::remove(out, ec);  // empty directory
       fs::rename(tmp, out, ec);
       if (ec) {
-        status = absl::InternalError(absl::StrCat("cannot rename ", tmp.string(), " to ", out_dir, ": ",
-                                                  ec.message()));
+        status = absl::InternalError(
+            absl::StrCat("cannot rename ", tmp.string(), " to ", out_dir, ": ", ec.message()));
       }
     }
   }

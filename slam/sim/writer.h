@@ -41,7 +41,8 @@ struct WriteStats {
 // Renders every frame of `scenario` and writes the dataset into `out_dir`.
 // `out_dir` may be absent, empty, or an existing dataset that does not yet
 // contain the sequence. `progress` (optional) is called after each frame.
-absl::Status WriteSequence(const Scenario& scenario, const std::string& out_dir,
+absl::Status WriteSequence(const Scenario& scenario,
+                           const std::string& out_dir,
                            const WriteOptions& options,
                            const std::function<void(int done, int total)>& progress = nullptr,
                            WriteStats* stats = nullptr);

@@ -1,9 +1,9 @@
 #include "slam/sim/labels.h"
 
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <map>
-
-#include <gtest/gtest.h>
 
 #include "slam/joints/joint.h"
 #include "slam/sim/scenarios.h"
@@ -20,7 +20,8 @@ std::vector<Eigen::Vector3d> LabelCorners(const FrameLabel& l) {
   std::vector<Eigen::Vector3d> out;
   for (double x : {-0.5 * l.l, 0.5 * l.l})
     for (double y : {-l.h, 0.0})
-      for (double z : {-0.5 * l.w, 0.5 * l.w}) out.push_back(r * Eigen::Vector3d(x, y, z) + l.location);
+      for (double z : {-0.5 * l.w, 0.5 * l.w})
+        out.push_back(r * Eigen::Vector3d(x, y, z) + l.location);
   return out;
 }
 
@@ -73,8 +74,10 @@ TEST(Labels, ProjectedBoxesCoverTheirMaskInstances) {
         // objects_gt (box centre) and the label (bottom centre) agree.
         const Eigen::Vector3d centre_in_cam =
             sc->WorldFromCamera(frame).Inverse() * label.world_from_object.translation();
-        EXPECT_NEAR((centre_in_cam - (label.location - Eigen::Vector3d(0, 0.5 * label.h, 0))).norm(), 0.0,
-                    1e-9);
+        EXPECT_NEAR(
+            (centre_in_cam - (label.location - Eigen::Vector3d(0, 0.5 * label.h, 0))).norm(),
+            0.0,
+            1e-9);
         ++checked_objects;
       }
     }
@@ -98,7 +101,8 @@ TEST(Labels, GroundTruthObeysTheJoints) {
       EXPECT_NEAR(c1.rotation()(1, 1), 1.0, 1e-12);
       const geometry::Vector6d xi_cam = (c1 * c0.Inverse()).Log();
       moving += xi_cam.norm();
-      const joints::Joint cam_joint = joints::Joint::FromPlane(joints::JointType::kPlanar, up, c0.translation());
+      const joints::Joint cam_joint =
+          joints::Joint::FromPlane(joints::JointType::kPlanar, up, c0.translation());
       EXPECT_NEAR((cam_joint.WorldProjector() * xi_cam - xi_cam).norm(), 0.0, 1e-9) << info.name;
       for (const SceneObject& object : sc->scene.objects) {
         const geometry::SE3d t0 = object.WorldFromObject(sc->TimeOf(i));
@@ -113,7 +117,8 @@ TEST(Labels, GroundTruthObeysTheJoints) {
           joint = joints::Joint::FromPlane(joints::JointType::kPlanar, up, t0.translation());
         } else {
           const Eigen::Vector3d hinge = object.revolute.hinge_point();
-          joint = joints::Joint::FromAxis(joints::JointType::kRevolute, object.revolute.hinge_axis(), hinge);
+          joint = joints::Joint::FromAxis(
+              joints::JointType::kRevolute, object.revolute.hinge_axis(), hinge);
           // Hinge points (box frame x = -l/2, z = 0) do not move.
           for (double y : {0.0, -1.0, -object.h}) {
             const Eigen::Vector3d p(-0.5 * object.l, y, 0.0);
@@ -134,9 +139,10 @@ TEST(Labels, WrongJointIsDetected) {
   absl::StatusOr<Scenario> sc = MakeScenario("driving", 1, 10);
   ASSERT_TRUE(sc.ok());
   const SceneObject& lead = sc->scene.objects.front();
-  const geometry::Vector6d xi = (lead.WorldFromObject(0.1) * lead.WorldFromObject(0.0).Inverse()).Log();
-  const joints::Joint wrong = joints::Joint::FromAxis(joints::JointType::kRevolute, Eigen::Vector3d(0, -1, 0),
-                                                      Eigen::Vector3d(50, 0, 0));
+  const geometry::Vector6d xi =
+      (lead.WorldFromObject(0.1) * lead.WorldFromObject(0.0).Inverse()).Log();
+  const joints::Joint wrong = joints::Joint::FromAxis(
+      joints::JointType::kRevolute, Eigen::Vector3d(0, -1, 0), Eigen::Vector3d(50, 0, 0));
   EXPECT_GT((wrong.WorldProjector() * xi - xi).norm(), 0.1);
 }
 

@@ -1,8 +1,8 @@
 #include "slam/sim/motion.h"
 
-#include <cmath>
-
 #include <gtest/gtest.h>
+
+#include <cmath>
 
 namespace twist::sim {
 namespace {

@@ -1,12 +1,12 @@
 #include "slam/sim/renderer.h"
 
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <cmath>
-#include <vector>
-
-#include <gtest/gtest.h>
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
+#include <vector>
 
 #include "slam/sim/scenarios.h"
 #include "slam/sim/writer.h"
@@ -131,8 +131,8 @@ TEST(Renderer, OrbFindsAtLeast1000KeypointsPerFrame) {
     for (int frame : {0, 45}) {
       Exposure left, right;
       FrameExposures(*sc, frame, &left, &right);
-      const StereoRender r =
-          renderer.RenderStereo(sc->scene, sc->TimeOf(frame), sc->WorldFromCamera(frame), left, right);
+      const StereoRender r = renderer.RenderStereo(
+          sc->scene, sc->TimeOf(frame), sc->WorldFromCamera(frame), left, right);
       cv::Ptr<cv::ORB> orb = cv::ORB::create(5000);
       std::vector<cv::KeyPoint> keypoints;
       orb->detect(r.left, keypoints);
@@ -142,12 +142,14 @@ TEST(Renderer, OrbFindsAtLeast1000KeypointsPerFrame) {
 }
 
 TEST(Renderer, RightCameraSitsAtPlusBaseline) {
-  const geometry::SE3d world_from_left(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitY()).toRotationMatrix(),
-                                       Eigen::Vector3d(1, 2, 3));
+  const geometry::SE3d world_from_left(
+      Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitY()).toRotationMatrix(),
+      Eigen::Vector3d(1, 2, 3));
   const geometry::SE3d world_from_right = RightFromLeftPose(world_from_left, 0.54);
   const Eigen::Vector3d p_world(4.0, 1.0, 20.0);
   const geometry::StereoCamera cam = KittiLikeCamera();
-  const Eigen::Vector3d uvr = cam.ProjectStereo(Eigen::Vector3d(world_from_left.Inverse() * p_world));
+  const Eigen::Vector3d uvr =
+      cam.ProjectStereo(Eigen::Vector3d(world_from_left.Inverse() * p_world));
   const Eigen::Vector2d right = cam.Project(Eigen::Vector3d(world_from_right.Inverse() * p_world));
   EXPECT_NEAR(right.x(), uvr.z(), 1e-9);
   EXPECT_NEAR(right.y(), uvr.y(), 1e-9);

@@ -1,9 +1,9 @@
 #include "slam/sim/scenarios.h"
 
+#include <gtest/gtest.h>
+
 #include <array>
 #include <cmath>
-
-#include <gtest/gtest.h>
 
 namespace twist::sim {
 namespace {
@@ -11,10 +11,15 @@ namespace {
 using Corners2 = std::array<Eigen::Vector2d, 4>;
 
 // Footprint (x, z) of an oriented box on the ground, grown by `margin`.
-Corners2 Footprint(const geometry::SE3d& world_from_body, double half_x, double half_z, double margin) {
+Corners2 Footprint(const geometry::SE3d& world_from_body,
+                   double half_x,
+                   double half_z,
+                   double margin) {
   const double hx = half_x + margin, hz = half_z + margin;
-  const std::array<Eigen::Vector3d, 4> local = {Eigen::Vector3d(-hx, 0, -hz), Eigen::Vector3d(hx, 0, -hz),
-                                                Eigen::Vector3d(hx, 0, hz), Eigen::Vector3d(-hx, 0, hz)};
+  const std::array<Eigen::Vector3d, 4> local = {Eigen::Vector3d(-hx, 0, -hz),
+                                                Eigen::Vector3d(hx, 0, -hz),
+                                                Eigen::Vector3d(hx, 0, hz),
+                                                Eigen::Vector3d(-hx, 0, hz)};
   Corners2 c;
   for (int i = 0; i < 4; ++i) {
     const Eigen::Vector3d p = world_from_body * local[i];
@@ -67,7 +72,8 @@ TEST(Scenarios, ObjectsDoNotCollide) {
         const double t = sc->TimeOf(i);
         // Ego: camera z axis forward; box from 2.6 m behind to 1.8 m ahead.
         const geometry::SE3d ego_centre =
-            sc->WorldFromCamera(i) * geometry::SE3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, 0, -0.4));
+            sc->WorldFromCamera(i) *
+            geometry::SE3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, 0, -0.4));
         const Corners2 ego = Footprint(ego_centre, 0.95, 2.2, 0.0);
         std::vector<Corners2> boxes;
         for (const SceneObject& o : objects) {
@@ -86,8 +92,8 @@ TEST(Scenarios, ObjectsDoNotCollide) {
           for (size_t b = a + 1; b < objects.size(); ++b) {
             if (objects[b].kind != MotionKind::kPlanar) continue;
             EXPECT_FALSE(Overlap(boxes[a], boxes[b]))
-                << info.name << " seed " << seed << " frame " << i << " objects " << objects[a].track_id
-                << " and " << objects[b].track_id;
+                << info.name << " seed " << seed << " frame " << i << " objects "
+                << objects[a].track_id << " and " << objects[b].track_id;
           }
         }
       }

@@ -1,14 +1,14 @@
 #include "slam/sim/writer.h"
 
+#include <gtest/gtest.h>
+
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <opencv2/imgcodecs.hpp>
 #include <set>
 #include <sstream>
 #include <string>
-
-#include <gtest/gtest.h>
-#include <opencv2/imgcodecs.hpp>
 
 #include "slam/io/sequence.h"
 #include "slam/joints/class_table.h"
@@ -47,7 +47,8 @@ TEST(Writer, WritesADatasetTheKittiTrackingReaderAccepts) {
   options.sequence = "0007";
   ASSERT_TRUE(WriteSequence(*sc, dir.string(), options).ok());
 
-  absl::StatusOr<std::unique_ptr<io::SequenceReader>> seq = io::OpenSequence(dir.string(), "kitti-tracking", "0007");
+  absl::StatusOr<std::unique_ptr<io::SequenceReader>> seq =
+      io::OpenSequence(dir.string(), "kitti-tracking", "0007");
   ASSERT_TRUE(seq.ok()) << seq.status();
   const io::SequenceReader& r = **seq;
   ASSERT_EQ(r.size(), 3);
@@ -62,7 +63,8 @@ TEST(Writer, WritesADatasetTheKittiTrackingReaderAccepts) {
   EXPECT_EQ(r.timestamps_ns()[1] - r.timestamps_ns()[0], 100'000'000);
   ASSERT_TRUE(r.has_gt_poses());
   for (int i = 0; i < 3; ++i) {
-    EXPECT_NEAR((r.gt_world_from_camera()[i].matrix() - sc->WorldFromCamera(i).matrix()).norm(), 0.0, 1e-9);
+    EXPECT_NEAR(
+        (r.gt_world_from_camera()[i].matrix() - sc->WorldFromCamera(i).matrix()).norm(), 0.0, 1e-9);
   }
   ASSERT_TRUE(r.has_labels());
   ASSERT_TRUE(r.has_gt_objects());
@@ -153,9 +155,12 @@ TEST(Writer, CalibrationHasKittiTrackingKeys) {
     while (ls >> v) ++n;
     EXPECT_EQ(n, key == "R_rect:" ? 9 : 12) << key;
   }
-  EXPECT_EQ(keys, (std::set<std::string>{"P0:", "P1:", "P2:", "P3:", "R_rect:", "Tr_velo_cam:", "Tr_imu_velo:"}));
-  EXPECT_NE(text.find("P3: 7.215377000000e+02 0.000000000000e+00 6.095593000000e+02 -3.896303580000e+02"),
-            std::string::npos);
+  EXPECT_EQ(keys,
+            (std::set<std::string>{
+                "P0:", "P1:", "P2:", "P3:", "R_rect:", "Tr_velo_cam:", "Tr_imu_velo:"}));
+  EXPECT_NE(
+      text.find("P3: 7.215377000000e+02 0.000000000000e+00 6.095593000000e+02 -3.896303580000e+02"),
+      std::string::npos);
 }
 
 }  // namespace
