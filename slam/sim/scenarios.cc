@@ -649,7 +649,7 @@ void BuildIntersection(Scenario* sc, Builder* b) {
   b->AddPedestrian(
       PlanarMotion(PlanarState{9.0, north + 1.5, M_PI / 2.0, 1.2}, {}, G - kCurbHeight));
   b->AddPedestrian(
-      PlanarMotion(PlanarState{20.0, south - 1.2, -M_PI / 2.0, 1.3}, {}, G - kCurbHeight));
+      PlanarMotion(PlanarState{14.0, south - 1.6, M_PI / 2.0, 1.3}, {}, G - kCurbHeight));
 }
 
 void BuildStationaryThenAccelerating(Scenario* sc, Builder* b) {
@@ -701,7 +701,7 @@ void BuildFollowBraking(Scenario* sc, Builder* b) {
                          {{2.0, 0.0, 0.0}, {2.5, -4.0, 0.0}, {2.0, 0.0, 0.0}, {5.0, 2.0, 0.0}},
                          G));
   b->AddCar(PlanarMotion(PlanarState{kOncomingLane, 80.0, M_PI, 9.0}, {}, G));
-  b->AddCar(PlanarMotion(PlanarState{kOncomingLane, 150.0, M_PI, 11.0}, {}, G));
+  b->AddCar(PlanarMotion(PlanarState{kOncomingLane, 150.0, M_PI, 9.0}, {}, G));
   b->ParkedRow(kParkRight, -30.0, z1 - 20.0, 0.0, 0.03, {});
   b->ParkedRow(kParkLeft, -30.0, z1 - 20.0, M_PI, 0.03, {});
   Walkers(b, 4, 0.0, 80.0);

@@ -4,6 +4,10 @@
 
 #include <array>
 #include <cmath>
+#include <utility>
+#include <vector>
+
+#include "slam/sim/renderer.h"
 
 namespace twist::sim {
 namespace {
@@ -60,12 +64,13 @@ TEST(Scenarios, ListAndErrors) {
 }
 
 // Objects never overlap each other or the ego car (a 1.9 m x 4.4 m box
-// around the camera, 1.8 m of it ahead) over the default length, for a few
-// seeds.
+// around the camera, 1.8 m of it ahead) over the default length for a few
+// seeds, and over 60 s for one.
 TEST(Scenarios, ObjectsDoNotCollide) {
   for (const ScenarioInfo& info : ListScenarios()) {
-    for (uint32_t seed : {1u, 2u, 77u}) {
-      absl::StatusOr<Scenario> sc = MakeScenario(info.name, seed, 100);
+    for (const auto& [seed, frames] :
+         std::vector<std::pair<uint32_t, int>>{{1, 100}, {2, 100}, {77, 100}, {5, 600}}) {
+      absl::StatusOr<Scenario> sc = MakeScenario(info.name, seed, frames);
       ASSERT_TRUE(sc.ok());
       const auto& objects = sc->scene.objects;
       for (int i = 0; i < sc->num_frames; i += 2) {
@@ -98,6 +103,33 @@ TEST(Scenarios, ObjectsDoNotCollide) {
         }
       }
     }
+  }
+}
+
+// Long sequences still look at a street: the world is sized to the distance
+// the camera covers.
+TEST(Scenarios, LongSequencesStayInsideTheStreet) {
+  for (const ScenarioInfo& info : ListScenarios()) {
+    absl::StatusOr<Scenario> sc = MakeScenario(info.name, 3, 600);
+    ASSERT_TRUE(sc.ok());
+    const Renderer renderer(sc->camera, RenderOptions());
+    const int last = sc->num_frames - 1;
+    const std::vector<Quad> quads = Renderer::QuadsAt(sc->scene, sc->TimeOf(last));
+    const ViewBuffers view = renderer.Rasterize(quads, sc->WorldFromCamera(last));
+    int64_t sky = 0, road = 0;
+    for (int v = 0; v < view.quad.rows; ++v) {
+      for (int u = 0; u < view.quad.cols; ++u) {
+        const int32_t id = view.quad.at<int32_t>(v, u);
+        if (id < 0) {
+          ++sky;
+        } else if (quads[id].panoptic == PanopticId(kClassRoad, 0)) {
+          ++road;
+        }
+      }
+    }
+    const double n = static_cast<double>(view.quad.total());
+    EXPECT_LT(sky / n, 0.4) << info.name;
+    EXPECT_GT(road / n, 0.1) << info.name;
   }
 }
 
