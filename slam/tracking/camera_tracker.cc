@@ -326,6 +326,49 @@ bool CameraTracker::TrackWithMotionModel(map::Frame* frame, map::Map* map) {
   return map_inliers >= options_.min_motion_inliers;
 }
 
+namespace {
+
+// PnP RANSAC (OpenCV EPnP, deterministic) on the frame's current matches;
+// on success sets the pose and clears the outlier matches.
+bool PoseFromMatchesRansac(const geometry::StereoCamera& camera, map::Frame* frame) {
+  const auto& f = *frame->features;
+  std::vector<cv::Point3f> obj;
+  std::vector<cv::Point2f> img;
+  std::vector<int> index;
+  for (int i = 0; i < f.size(); ++i) {
+    if (!frame->matched[i]) continue;
+    const Eigen::Vector3d& p = frame->p_in_world[i];
+    obj.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+    img.push_back(f.keypoints[i].pt);
+    index.push_back(i);
+  }
+  if (obj.size() < 10) return false;
+  cv::Mat K = (cv::Mat_<double>(3, 3) << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1);
+  cv::Mat rvec, tvec;
+  std::vector<int> inliers;
+  if (!cv::solvePnPRansac(obj, img, K, cv::noArray(), rvec, tvec, false, 300, 3.0f, 0.99, inliers,
+                          cv::SOLVEPNP_EPNP) ||
+      inliers.size() < 10) {
+    return false;
+  }
+  cv::Mat Rcv;
+  cv::Rodrigues(rvec, Rcv);
+  Eigen::Matrix3d R;
+  Eigen::Vector3d t;
+  cv::cv2eigen(Rcv, R);
+  cv::cv2eigen(tvec, t);
+  if (!R.allFinite() || !t.allFinite()) return false;
+  frame->camera_from_world = geometry::SE3d(Eigen::Quaterniond(R).normalized(), t);
+  std::vector<char> keep(index.size(), 0);
+  for (int k : inliers) keep[k] = 1;
+  for (size_t k = 0; k < index.size(); ++k) {
+    if (!keep[k]) frame->ClearMatch(index[k]);
+  }
+  return true;
+}
+
+}  // namespace
+
 bool CameraTracker::TrackReferenceKeyFrame(map::Frame* frame, map::Map* map) {
   const map::KeyFrame* ref = map->keyframe(reference_kf_id_);
   if (ref == nullptr) return false;
@@ -367,6 +410,9 @@ bool CameraTracker::TrackReferenceKeyFrame(map::Frame* frame, map::Map* map) {
   int n = 0;
   for (uint8_t x : frame->matched) n += x;
   if (n < 15) return false;
+  // The last pose may be far off (no velocity): an initial pose from PnP
+  // RANSAC avoids optimising from a poor start with wrong matches.
+  PoseFromMatchesRansac(camera_, frame);
   Optimize(frame);
   int inliers = 0;
   for (int i = 0; i < static_cast<int>(frame->matched.size()); ++i) {
