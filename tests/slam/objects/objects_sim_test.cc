@@ -73,7 +73,7 @@ std::map<int, TrackStats> RunScenario(const std::string& name,
   std::mt19937_64 rng(1);
   std::vector<Eigen::Vector3d> road_points;
   ObjectTrackerOptions options;
-  options.constrained = constrained;
+  options.constrained = constrained && std::getenv("TWIST_SIM_FREE") == nullptr;
   if (const char* w = std::getenv("TWIST_SIM_WINDOW")) options.flow.window_size = std::atoi(w);
   if (std::getenv("TWIST_SIM_NOREFINE") != nullptr) options.refine_by_projection = false;
   if (const char* m = std::getenv("TWIST_SIM_MINSIGMA"))
@@ -257,7 +257,7 @@ std::map<int, TrackStats> RunScenario(const std::string& name,
   }
   std::printf("[sim %s, %s, BA window %d] road plane: %s\n",
               name.c_str(),
-              constrained ? "constrained" : "free",
+              options.constrained ? "constrained" : "free",
               ba_window,
               road.has_plane() ? "fitted" : "none");
   for (const auto& [id, st] : stats) {
