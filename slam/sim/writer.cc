@@ -227,7 +227,9 @@ absl::Status WriteSequence(const Scenario& scenario,
   }
   Stopwatch total;
   std::error_code ec;
-  const fs::path out(out_dir);
+  fs::path out = fs::path(out_dir).lexically_normal();
+  if (out.filename().empty()) out = out.parent_path();  // "DIR/" -> "DIR"
+  if (out.empty()) return absl::InvalidArgumentError("empty output directory");
   const bool exists = fs::exists(out, ec);
   if (exists && !fs::is_directory(out, ec)) {
     return absl::InvalidArgumentError(absl::StrCat(out_dir, " exists and is not a directory"));

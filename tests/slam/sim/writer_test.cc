@@ -134,6 +134,10 @@ TEST(Writer, AddsSequencesButNeverOverwritesOne) {
   for (const auto& e : fs::directory_iterator(dir)) {
     EXPECT_EQ(e.path().filename().string().find(".tmp"), std::string::npos) << e.path();
   }
+  // A trailing slash names the same directory.
+  const fs::path slash = FreshDir("slash");
+  ASSERT_TRUE(WriteSequence(*sc, slash.string() + "/", options).ok());
+  EXPECT_TRUE(fs::exists(slash / "calib/0002.txt"));
   // A file where the dataset should go is an error.
   const fs::path file = FreshDir("file");
   std::ofstream(file) << "x";
