@@ -3,6 +3,7 @@
 #include <glog/logging.h>
 
 #include <algorithm>
+#include <cmath>
 #include <opencv2/core.hpp>
 
 #include "slam/semantic/hungarian.h"
@@ -15,13 +16,16 @@ double BoxIoU(const cv::Rect2d& a, const cv::Rect2d& b) {
   return uni > 0.0 ? inter / uni : 0.0;
 }
 
-double MaskIoU(const cv::Mat& a, const cv::Mat& b) {
+double MaskIoU(const cv::Mat& a, const cv::Mat& b, cv::Rect roi) {
   CHECK_EQ(a.type(), CV_8UC1);
   CHECK_EQ(b.type(), CV_8UC1);
   CHECK(a.size() == b.size()) << "mask IoU needs masks of the same size";
+  const cv::Rect full(0, 0, a.cols, a.rows);
+  roi = roi.empty() ? full : (roi & full);
+  if (roi.empty()) return 0.0;
   cv::Mat inter, uni;
-  cv::bitwise_and(a, b, inter);
-  cv::bitwise_or(a, b, uni);
+  cv::bitwise_and(a(roi), b(roi), inter);
+  cv::bitwise_or(a(roi), b(roi), uni);
   const int n_uni = cv::countNonZero(uni);
   return n_uni > 0 ? static_cast<double>(cv::countNonZero(inter)) / n_uni : 0.0;
 }
@@ -66,7 +70,19 @@ double ClusterAssociator::Score(const Detection& d, const ClusterTrack& c) const
   double overlap = 0.0;
   const cv::Mat& ref_mask = !c.predicted_mask.empty() ? c.predicted_mask : c.last_mask;
   if (!d.mask.empty() && !ref_mask.empty() && d.mask.size() == ref_mask.size()) {
-    overlap = MaskIoU(d.mask, ref_mask);
+    // Scan only the union of the boxes when both boxes are known (a box
+    // must cover its mask); otherwise the whole image.
+    const std::optional<cv::Rect2d> ref_box =
+        !c.predicted_mask.empty() ? c.predicted_box : std::optional<cv::Rect2d>(c.last_box);
+    cv::Rect roi;
+    if (ref_box && !d.box.empty() && !ref_box->empty()) {
+      const cv::Rect2d u = d.box | *ref_box;
+      roi = cv::Rect(static_cast<int>(std::floor(u.x)),
+                     static_cast<int>(std::floor(u.y)),
+                     static_cast<int>(std::ceil(u.width)) + 2,
+                     static_cast<int>(std::ceil(u.height)) + 2);
+    }
+    overlap = MaskIoU(d.mask, ref_mask, roi);
   } else {
     overlap = BoxIoU(d.box, c.predicted_box.value_or(c.last_box));
   }

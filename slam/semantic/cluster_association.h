@@ -29,7 +29,9 @@ namespace twist::semantic {
 
 double BoxIoU(const cv::Rect2d& a, const cv::Rect2d& b);
 // IoU of two binary CV_8UC1 masks of the same size (non-zero = inside).
-double MaskIoU(const cv::Mat& a, const cv::Mat& b);
+// `roi`, when non-empty, must contain every non-zero pixel of both masks
+// (e.g. the union of their boxes): only it is scanned.
+double MaskIoU(const cv::Mat& a, const cv::Mat& b, cv::Rect roi = cv::Rect());
 
 // One instance segment of the current frame.
 struct Detection {

@@ -32,6 +32,9 @@ TEST(ClusterAssociation, IoUs) {
   a(cv::Rect(0, 0, 4, 4)).setTo(255);
   b(cv::Rect(2, 0, 4, 4)).setTo(255);
   EXPECT_NEAR(MaskIoU(a, b), 8.0 / 24.0, 1e-12);
+  EXPECT_NEAR(MaskIoU(a, b, cv::Rect(0, 0, 6, 4)), 8.0 / 24.0, 1e-12);      // union of the boxes
+  EXPECT_NEAR(MaskIoU(a, b, cv::Rect(-3, -3, 50, 50)), 8.0 / 24.0, 1e-12);  // clipped
+  EXPECT_EQ(MaskIoU(a, b, cv::Rect(20, 20, 5, 5)), 0.0);
 }
 
 // Two cars driving side by side to the right, seen for 10 frames; the
