@@ -6,6 +6,7 @@
 //   engine_bench [--data DIR] [--seq 06] [--mode sync|background|both]
 //                [--features N] [--repeat R] [--json FILE]
 #include <sys/resource.h>
+#include <sys/stat.h>
 
 #include <algorithm>
 #include <cstdio>
@@ -14,7 +15,6 @@
 #include <map>
 #include <sstream>
 #include <string>
-#include <sys/stat.h>
 #include <vector>
 
 #include "slam/common/timer.h"
@@ -46,7 +46,8 @@ long CurrentRssKb() {
 double ProcessCpuMs() {
   struct rusage ru;
   getrusage(RUSAGE_SELF, &ru);
-  return (ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) * 1e3 + (ru.ru_utime.tv_usec + ru.ru_stime.tv_usec) * 1e-3;
+  return (ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) * 1e3 +
+         (ru.ru_utime.tv_usec + ru.ru_stime.tv_usec) * 1e-3;
 }
 
 double LoadAverage() {
@@ -144,12 +145,18 @@ int main(int argc, char** argv) {
       }
       return argv[++i];
     };
-    if (a == "--data") data = next();
-    else if (a == "--seq") seq_name = next();
-    else if (a == "--mode") mode = next();
-    else if (a == "--features") num_features = std::stoi(next());
-    else if (a == "--repeat") repeat = std::stoi(next());
-    else if (a == "--json") json_path = next();
+    if (a == "--data")
+      data = next();
+    else if (a == "--seq")
+      seq_name = next();
+    else if (a == "--mode")
+      mode = next();
+    else if (a == "--features")
+      num_features = std::stoi(next());
+    else if (a == "--repeat")
+      repeat = std::stoi(next());
+    else if (a == "--json")
+      json_path = next();
     else {
       std::fprintf(stderr, "engine_bench: unknown argument %s\n", a.c_str());
       return 2;
@@ -174,8 +181,9 @@ int main(int argc, char** argv) {
     }
     frames.push_back(*std::move(f));
   }
-  const std::vector<twist::geometry::SE3d> gt =
-      (*seq)->has_gt_poses() ? (*seq)->gt_world_from_camera() : std::vector<twist::geometry::SE3d>{};
+  const std::vector<twist::geometry::SE3d> gt = (*seq)->has_gt_poses()
+                                                    ? (*seq)->gt_world_from_camera()
+                                                    : std::vector<twist::geometry::SE3d>{};
 
   twist::SessionConfig config;
   config.camera = (*seq)->camera();
@@ -193,27 +201,43 @@ int main(int argc, char** argv) {
   }
   const long peak_kb = PeakRssKb();
 
-  const char* kStages[] = {"orb", "stereo", "track", "keyframe", "tracking_latency", "mapping", "ba", "total"};
-  std::printf("engine_bench: %s seq %s, %zu frames %dx%d, %d features\n", data.c_str(), seq_name.c_str(),
-              frames.size(), config.camera.width, config.camera.height, num_features);
+  const char* kStages[] = {
+      "orb", "stereo", "track", "keyframe", "tracking_latency", "mapping", "ba", "total"};
+  std::printf("engine_bench: %s seq %s, %zu frames %dx%d, %d features\n",
+              data.c_str(),
+              seq_name.c_str(),
+              frames.size(),
+              config.camera.width,
+              config.camera.height,
+              num_features);
   std::ostringstream json;
   json << "{\"frames\": " << frames.size() << ", \"features\": " << num_features
        << ", \"peak_rss_mb\": " << peak_kb / 1024.0 << ", \"runs\": [";
   for (size_t k = 0; k < runs.size(); ++k) {
     const RunResult& r = runs[k];
-    std::printf("\n[%s] %.2f frames/s end-to-end (%.2f s), lost %d, keyframes %d, points %d\n", r.mode.c_str(),
-                r.fps, r.wall_s, r.lost, r.keyframes, r.map_points);
-    std::printf("  RPE_t %.4f m/frame  RPE_R %.4f deg/frame  ATE %.4f m\n", r.rpe_t, r.rpe_r, r.ate);
-    std::printf("  CPU %.1f ms/frame (all threads), machine load average %.1f\n", r.cpu_ms_per_frame,
+    std::printf("\n[%s] %.2f frames/s end-to-end (%.2f s), lost %d, keyframes %d, points %d\n",
+                r.mode.c_str(),
+                r.fps,
+                r.wall_s,
+                r.lost,
+                r.keyframes,
+                r.map_points);
+    std::printf(
+        "  RPE_t %.4f m/frame  RPE_R %.4f deg/frame  ATE %.4f m\n", r.rpe_t, r.rpe_r, r.ate);
+    std::printf("  CPU %.1f ms/frame (all threads), machine load average %.1f\n",
+                r.cpu_ms_per_frame,
                 r.load_average);
     std::printf("  %-18s %8s %8s %6s\n", "stage (ms)", "median", "p95", "n");
     json << (k ? ", " : "") << "{\"mode\": \"" << r.mode << "\", \"fps\": " << r.fps
-         << ", \"wall_s\": " << r.wall_s << ", \"lost\": " << r.lost << ", \"keyframes\": " << r.keyframes
-         << ", \"map_points\": " << r.map_points << ", \"rpe_t\": " << r.rpe_t << ", \"rpe_r_deg\": " << r.rpe_r
-         << ", \"ate\": " << r.ate << ", \"cpu_ms_per_frame\": " << r.cpu_ms_per_frame
-         << ", \"load_average\": " << r.load_average << ", \"rss_growth_mb\": " << (r.rss_after_kb - r.rss_before_kb) / 1024.0
+         << ", \"wall_s\": " << r.wall_s << ", \"lost\": " << r.lost
+         << ", \"keyframes\": " << r.keyframes << ", \"map_points\": " << r.map_points
+         << ", \"rpe_t\": " << r.rpe_t << ", \"rpe_r_deg\": " << r.rpe_r << ", \"ate\": " << r.ate
+         << ", \"cpu_ms_per_frame\": " << r.cpu_ms_per_frame
+         << ", \"load_average\": " << r.load_average
+         << ", \"rss_growth_mb\": " << (r.rss_after_kb - r.rss_before_kb) / 1024.0
          << ", \"rss_per_keyframe_kb\": "
-         << (r.keyframes ? static_cast<double>(r.rss_after_kb - r.rss_before_kb) / r.keyframes : 0.0)
+         << (r.keyframes ? static_cast<double>(r.rss_after_kb - r.rss_before_kb) / r.keyframes
+                         : 0.0)
          << ", \"stages\": {";
     bool first = true;
     for (const char* s : kStages) {
@@ -221,19 +245,24 @@ int main(int argc, char** argv) {
       if (it == r.stages.end()) continue;
       const double med = Percentile(it->second, 0.5), p95 = Percentile(it->second, 0.95);
       std::printf("  %-18s %8.2f %8.2f %6zu\n", s, med, p95, it->second.size());
-      json << (first ? "" : ", ") << "\"" << s << "\": {\"median_ms\": " << med << ", \"p95_ms\": " << p95
-           << ", \"n\": " << it->second.size() << "}";
+      json << (first ? "" : ", ") << "\"" << s << "\": {\"median_ms\": " << med
+           << ", \"p95_ms\": " << p95 << ", \"n\": " << it->second.size() << "}";
       first = false;
     }
-    const double lat_med = Percentile(r.frame_latency_ms, 0.5), lat_p95 = Percentile(r.frame_latency_ms, 0.95);
-    std::printf("  %-18s %8.2f %8.2f %6zu\n", "process_call", lat_med, lat_p95, r.frame_latency_ms.size());
-    std::printf("  memory: +%.1f MB during the run, %.1f kB per keyframe\n",
-                (r.rss_after_kb - r.rss_before_kb) / 1024.0,
-                r.keyframes ? static_cast<double>(r.rss_after_kb - r.rss_before_kb) / r.keyframes : 0.0);
-    json << "}, \"process_call\": {\"median_ms\": " << lat_med << ", \"p95_ms\": " << lat_p95 << "}}";
+    const double lat_med = Percentile(r.frame_latency_ms, 0.5),
+                 lat_p95 = Percentile(r.frame_latency_ms, 0.95);
+    std::printf(
+        "  %-18s %8.2f %8.2f %6zu\n", "process_call", lat_med, lat_p95, r.frame_latency_ms.size());
+    std::printf(
+        "  memory: +%.1f MB during the run, %.1f kB per keyframe\n",
+        (r.rss_after_kb - r.rss_before_kb) / 1024.0,
+        r.keyframes ? static_cast<double>(r.rss_after_kb - r.rss_before_kb) / r.keyframes : 0.0);
+    json << "}, \"process_call\": {\"median_ms\": " << lat_med << ", \"p95_ms\": " << lat_p95
+         << "}}";
   }
   json << "]}";
-  std::printf("\npeak RSS %.1f MB (includes the %zu preloaded frames)\n", peak_kb / 1024.0, frames.size());
+  std::printf(
+      "\npeak RSS %.1f MB (includes the %zu preloaded frames)\n", peak_kb / 1024.0, frames.size());
   std::printf("JSON %s\n", json.str().c_str());
   if (!json_path.empty()) {
     std::ofstream out(json_path);

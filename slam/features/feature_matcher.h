@@ -2,10 +2,9 @@
 // search, the orientation-consistency filter and ratio-test matching.
 #pragma once
 
+#include <opencv2/core.hpp>
 #include <utility>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 namespace twist::features {
 

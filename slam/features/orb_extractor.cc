@@ -1,14 +1,14 @@
 #include "slam/features/orb_extractor.h"
 
+#include <glog/logging.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
-#include <queue>
-#include <random>
-
-#include <glog/logging.h>
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
+#include <queue>
+#include <random>
 
 namespace twist::features {
 namespace {
@@ -194,7 +194,8 @@ void OrbExtractor::ExtractLevel(const cv::Mat& img,
   const int gy = (roi.height + kCellSize - 1) / kCellSize;
   std::vector<char> has_strong(gx * gy, 0);
   for (const cv::KeyPoint& kp : all) {
-    has_strong[static_cast<int>(kp.pt.y) / kCellSize * gx + static_cast<int>(kp.pt.x) / kCellSize] = 1;
+    has_strong[static_cast<int>(kp.pt.y) / kCellSize * gx + static_cast<int>(kp.pt.x) / kCellSize] =
+        1;
   }
   for (auto& kp : all) kp.pt += cv::Point2f(static_cast<float>(roi.x), static_cast<float>(roi.y));
   if (options_.min_fast_threshold < options_.fast_threshold) {

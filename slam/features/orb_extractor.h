@@ -13,20 +13,19 @@
 
 #include <array>
 #include <cstdint>
-#include <vector>
-
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "absl/status/status.h"
 
 namespace twist::features {
 
 struct OrbOptions {
-  int num_features = 2000;    // total over all levels
-  int num_levels = 8;         // pyramid levels
-  double scale_factor = 1.2;  // level l is scaled by 1 / scale_factor^l
-  int fast_threshold = 20;    // first FAST threshold
-  int min_fast_threshold = 7; // fallback threshold in cells without corners
+  int num_features = 2000;                // total over all levels
+  int num_levels = 8;                     // pyramid levels
+  double scale_factor = 1.2;              // level l is scaled by 1 / scale_factor^l
+  int fast_threshold = 20;                // first FAST threshold
+  int min_fast_threshold = 7;             // fallback threshold in cells without corners
   uint64_t pattern_seed = 0x0b5e55edULL;  // BRIEF test pattern seed
 
   absl::Status Validate() const;
@@ -34,9 +33,9 @@ struct OrbOptions {
 
 // Pyramid bookkeeping shared by frames, matchers and the optimizer.
 struct ScalePyramid {
-  std::vector<float> scale;          // scale_factor^l
+  std::vector<float> scale;  // scale_factor^l
   std::vector<float> inv_scale;
-  std::vector<float> sigma2;         // scale^2 (pixel noise variance per level)
+  std::vector<float> sigma2;  // scale^2 (pixel noise variance per level)
   std::vector<float> inv_sigma2;
   double scale_factor = 1.2;
   double log_scale_factor = 0.0;

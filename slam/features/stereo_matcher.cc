@@ -1,10 +1,10 @@
 #include "slam/features/stereo_matcher.h"
 
+#include <glog/logging.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
-
-#include <glog/logging.h>
 
 namespace twist::features {
 

@@ -9,9 +9,8 @@
 // SAD far above the median (robust scale) are rejected.
 #pragma once
 
-#include <vector>
-
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "slam/features/orb_extractor.h"
 #include "slam/geometry/stereo_camera.h"

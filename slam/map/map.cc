@@ -1,10 +1,10 @@
 #include "slam/map/map.h"
 
+#include <glog/logging.h>
+
 #include <algorithm>
 #include <climits>
 #include <cmath>
-
-#include <glog/logging.h>
 
 namespace twist::map {
 

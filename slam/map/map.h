@@ -7,15 +7,14 @@
 // assume the caller holds it.
 #pragma once
 
+#include <Eigen/Core>
 #include <array>
 #include <cstdint>
 #include <map>
 #include <memory>
 #include <mutex>
-#include <vector>
-
-#include <Eigen/Core>
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "slam/features/feature_matcher.h"
 #include "slam/features/orb_extractor.h"
@@ -69,9 +68,9 @@ struct KeyFrame {
   int64_t timestamp_ns = 0;
   std::shared_ptr<const FrameFeatures> features;
   geometry::SE3d camera_from_world;
-  std::vector<int64_t> point_ids;  // map point per keypoint, -1 none
-  std::map<int64_t, int> connections;           // covisible keyframe -> shared points
-  std::vector<int64_t> ordered_connections;     // by weight desc, then id
+  std::vector<int64_t> point_ids;            // map point per keypoint, -1 none
+  std::map<int64_t, int> connections;        // covisible keyframe -> shared points
+  std::vector<int64_t> ordered_connections;  // by weight desc, then id
   bool bad = false;
 
   Eigen::Vector3d CameraCenter() const { return camera_from_world.Inverse().translation(); }

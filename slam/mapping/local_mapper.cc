@@ -1,13 +1,13 @@
 #include "slam/mapping/local_mapper.h"
 
+#include <ceres/ceres.h>
+#include <glog/logging.h>
+
 #include <algorithm>
 #include <climits>
 #include <cmath>
 #include <map>
 #include <set>
-
-#include <ceres/ceres.h>
-#include <glog/logging.h>
 
 #include "slam/common/timer.h"
 #include "slam/features/feature_matcher.h"
@@ -54,7 +54,8 @@ class AbortCallback : public ceres::IterationCallback {
 
 bool NeedNewKeyFrame(const KeyFrameDecisionInput& in) {
   // Not right after a relocalisation while the map is large.
-  if (in.frame_id < in.last_relocalization_frame_id + in.max_frames && in.num_keyframes > in.max_frames) {
+  if (in.frame_id < in.last_relocalization_frame_id + in.max_frames &&
+      in.num_keyframes > in.max_frames) {
     return false;
   }
   const double ref_ratio = in.num_keyframes < 2 ? 0.4 : 0.75;
@@ -192,9 +193,9 @@ int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1,
   const auto& f1 = *kf1->features;
   const geometry::SE3d& T1 = kf1->camera_from_world;
   const Eigen::Vector3d C1 = kf1->CameraCenter();
-  const Eigen::Matrix3d K = (Eigen::Matrix3d() << camera_.fx, 0, camera_.cx, 0, camera_.fy,
-                             camera_.cy, 0, 0, 1)
-                                .finished();
+  const Eigen::Matrix3d K =
+      (Eigen::Matrix3d() << camera_.fx, 0, camera_.cx, 0, camera_.fy, camera_.cy, 0, 0, 1)
+          .finished();
   const Eigen::Matrix3d K_inv = K.inverse();
   int created = 0;
   for (int64_t nb_id : kf1->BestCovisible(options_.triangulation_neighbours)) {
@@ -271,8 +272,10 @@ int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1,
       const cv::KeyPoint& k1 = f1.keypoints[i];
       const cv::KeyPoint& k2 = f2.keypoints[j];
       const bool stereo1 = f1.u_right[i] >= 0.f, stereo2 = f2.u_right[j] >= 0.f;
-      const Eigen::Vector2d xn1((k1.pt.x - camera_.cx) / camera_.fx, (k1.pt.y - camera_.cy) / camera_.fy);
-      const Eigen::Vector2d xn2((k2.pt.x - camera_.cx) / camera_.fx, (k2.pt.y - camera_.cy) / camera_.fy);
+      const Eigen::Vector2d xn1((k1.pt.x - camera_.cx) / camera_.fx,
+                                (k1.pt.y - camera_.cy) / camera_.fy);
+      const Eigen::Vector2d xn2((k2.pt.x - camera_.cx) / camera_.fx,
+                                (k2.pt.y - camera_.cy) / camera_.fy);
       const Eigen::Vector3d ray1 = world_from_1.rotation() * xn1.homogeneous();
       const Eigen::Vector3d ray2 = world_from_2.rotation() * xn2.homogeneous();
       const double cos_rays = ray1.dot(ray2) / (ray1.norm() * ray2.norm());
@@ -295,11 +298,11 @@ int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1,
       }
       if (!p.allFinite()) continue;
       bool front1, front2;
-      const double chi1 = ObservationChi2(camera_, T1, p, k1, f1.u_right[i],
-                                          pyramid_.inv_sigma2[k1.octave], &front1);
+      const double chi1 = ObservationChi2(
+          camera_, T1, p, k1, f1.u_right[i], pyramid_.inv_sigma2[k1.octave], &front1);
       if (!front1 || chi1 > (stereo1 ? kChi2Stereo : kChi2Mono)) continue;
-      const double chi2 = ObservationChi2(camera_, T2, p, k2, f2.u_right[j],
-                                          pyramid_.inv_sigma2[k2.octave], &front2);
+      const double chi2 = ObservationChi2(
+          camera_, T2, p, k2, f2.u_right[j], pyramid_.inv_sigma2[k2.octave], &front2);
       if (!front2 || chi2 > (stereo2 ? kChi2Stereo : kChi2Mono)) continue;
       const double dist1 = (p - C1).norm(), dist2 = (p - C2).norm();
       if (dist1 == 0 || dist2 == 0) continue;
@@ -348,7 +351,8 @@ int LocalMapper::Fuse(map::KeyFrame* kf,
     for (int j : idx) {
       const cv::KeyPoint& kp = f.keypoints[j];
       if (kp.octave < level - 1 || kp.octave > level || !f.is_static[j]) continue;
-      double e2 = (uvr.x() - kp.pt.x) * (uvr.x() - kp.pt.x) + (uvr.y() - kp.pt.y) * (uvr.y() - kp.pt.y);
+      double e2 =
+          (uvr.x() - kp.pt.x) * (uvr.x() - kp.pt.x) + (uvr.y() - kp.pt.y) * (uvr.y() - kp.pt.y);
       const bool stereo = f.u_right[j] >= 0.f;
       if (stereo) e2 += (uvr.z() - f.u_right[j]) * (uvr.z() - f.u_right[j]);
       if (e2 * pyramid_.inv_sigma2[kp.octave] > (stereo ? kChi2Stereo : kChi2Mono)) continue;
@@ -469,7 +473,10 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
         // Observations behind the camera cannot be evaluated: left out.
         if ((k->camera_from_world * pos).z() <= 1e-3) continue;
         const cv::KeyPoint& kp = k->features->keypoints[idx];
-        obs.push_back({oid, pid, idx, Eigen::Vector3d(kp.pt.x, kp.pt.y, k->features->u_right[idx]),
+        obs.push_back({oid,
+                       pid,
+                       idx,
+                       Eigen::Vector3d(kp.pt.x, kp.pt.y, k->features->u_right[idx]),
                        kp.octave});
       }
     }
@@ -493,7 +500,8 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
       cost = new optimization::MonoReprojectionCost(camera_, o.uvr.head<2>(), s);
       loss = new ceres::HuberLoss(std::sqrt(kChi2Mono));
     }
-    blocks[k] = problem.AddResidualBlock(cost, loss, poses[o.kf_id].data(), points[o.point_id].data());
+    blocks[k] =
+        problem.AddResidualBlock(cost, loss, poses[o.kf_id].data(), points[o.point_id].data());
   }
   for (auto& [id, params] : poses) {
     problem.SetManifold(params.data(), manifold);
@@ -545,7 +553,8 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
   for (const auto& [id, params] : poses) {
     if (fixed.count(id)) continue;
     map::KeyFrame* k = map->keyframe(id);
-    if (k != nullptr) k->camera_from_world = map::CanonicalPose(geometry::SE3d::FromParams(params.data()));
+    if (k != nullptr)
+      k->camera_from_world = map::CanonicalPose(geometry::SE3d::FromParams(params.data()));
   }
   for (const auto& [pid, pos] : points) {
     map::MapPoint* p = map->GoodPoint(pid);

@@ -30,9 +30,9 @@ struct MapperOptions {
   int min_new_stereo_points = 100;      // at least this many closest stereo points
   int triangulation_neighbours = 10;
   int fusion_neighbours = 10;
-  int local_ba_iterations = 10;         // after the first 5 robust iterations
-  int num_threads = 1;                  // Ceres threads
-  double keyframe_redundancy = 0.9;     // cull keyframes with this share of redundant points
+  int local_ba_iterations = 10;      // after the first 5 robust iterations
+  int num_threads = 1;               // Ceres threads
+  double keyframe_redundancy = 0.9;  // cull keyframes with this share of redundant points
   int max_frames_between_keyframes = 10;
 };
 
@@ -93,7 +93,9 @@ class LocalMapper {
  private:
   void CullRecentPoints(const map::KeyFrame& kf, map::Map* map);
   // `lock` (held on entry and exit) is released briefly between neighbours.
-  int TriangulateWithNeighbours(map::KeyFrame* kf, map::Map* map, std::unique_lock<std::mutex>* lock);
+  int TriangulateWithNeighbours(map::KeyFrame* kf,
+                                map::Map* map,
+                                std::unique_lock<std::mutex>* lock);
   void FuseWithNeighbours(map::KeyFrame* kf, map::Map* map, std::unique_lock<std::mutex>* lock);
   static void YieldLock(std::unique_lock<std::mutex>* lock);
   int Fuse(map::KeyFrame* kf, const std::vector<int64_t>& point_ids, map::Map* map, float radius);

@@ -6,11 +6,10 @@
 
 #include <cstdint>
 #include <cstring>
+#include <opencv2/core.hpp>
 #include <string>
 #include <type_traits>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "slam/geometry/se3.h"
 

@@ -4,14 +4,14 @@
 // per-session thread), snapshots and exact save/load.
 #include "slam/system/slam_system.h"
 
+#include <glog/logging.h>
+
 #include <cstdio>
 #include <fstream>
 #include <mutex>
+#include <opencv2/imgproc.hpp>
 #include <sstream>
 #include <thread>
-
-#include <glog/logging.h>
-#include <opencv2/imgproc.hpp>
 
 #include "slam/common/timer.h"
 #include "slam/features/orb_extractor.h"
@@ -251,10 +251,10 @@ absl::Status SlamSystemImpl::ValidateInput(const StereoFrame& frame) const {
   }
   const auto& cam = config_.camera;
   if (frame.left.cols != cam.width || frame.left.rows != cam.height) {
-    return absl::InvalidArgumentError(
-        "image size " + std::to_string(frame.left.cols) + "x" + std::to_string(frame.left.rows) +
-        " differs from the calibration " + std::to_string(cam.width) + "x" +
-        std::to_string(cam.height));
+    return absl::InvalidArgumentError("image size " + std::to_string(frame.left.cols) + "x" +
+                                      std::to_string(frame.left.rows) +
+                                      " differs from the calibration " + std::to_string(cam.width) +
+                                      "x" + std::to_string(cam.height));
   }
   if (!frame.panoptic.empty()) {
     if (frame.panoptic.size() != frame.left.size()) {
@@ -264,7 +264,8 @@ absl::Status SlamSystemImpl::ValidateInput(const StereoFrame& frame) const {
       return absl::InvalidArgumentError("panoptic mask must be CV_16UC1 or CV_32SC1");
     }
   }
-  if (!frame.flow.empty() && (frame.flow.size() != frame.left.size() || frame.flow.type() != CV_32FC2)) {
+  if (!frame.flow.empty() &&
+      (frame.flow.size() != frame.left.size() || frame.flow.type() != CV_32FC2)) {
     return absl::InvalidArgumentError("optical flow must be CV_32FC2 of the image size");
   }
   if (has_last_timestamp_ && frame.timestamp_ns <= last_timestamp_ns_) {
@@ -276,8 +277,7 @@ absl::Status SlamSystemImpl::ValidateInput(const StereoFrame& frame) const {
 }
 
 std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
-    const StereoFrame& frame,
-    std::vector<StageTiming>* timings) const {
+    const StereoFrame& frame, std::vector<StageTiming>* timings) const {
   Stopwatch sw;
   const cv::Mat left = ToGray(frame.left);
   const cv::Mat right = ToGray(frame.right);
@@ -291,9 +291,14 @@ std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
   right_thread.join();
   timings->push_back({"orb", sw.ElapsedMs()});
   sw.Restart();
-  features::StereoMatchResult st =
-      features::MatchStereo(config_.camera, orb_.pyramid(), f.keypoints, f.descriptors, right_kps,
-                            right_desc, left_levels, right_levels);
+  features::StereoMatchResult st = features::MatchStereo(config_.camera,
+                                                         orb_.pyramid(),
+                                                         f.keypoints,
+                                                         f.descriptors,
+                                                         right_kps,
+                                                         right_desc,
+                                                         left_levels,
+                                                         right_levels);
   f.u_right = std::move(st.u_right);
   f.depth = std::move(st.depth);
   // Panoptic labels; a-priori dynamic classes leave the static pipeline.
@@ -366,7 +371,8 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
         std::lock_guard<std::mutex> lock(map_.mutex());
         in.num_keyframes = map_.NumGoodKeyFrames();
         const map::KeyFrame* ref = map_.keyframe(tracker_.reference_kf_id());
-        in.reference_tracked_points = ref ? ref->TrackedPoints(in.num_keyframes <= 2 ? 2 : 3, map_) : 0;
+        in.reference_tracked_points =
+            ref ? ref->TrackedPoints(in.num_keyframes <= 2 ? 2 : 3, map_) : 0;
       }
       in.frame_id = frame.id;
       in.last_keyframe_frame_id = tracker_.last_keyframe_frame_id();
@@ -405,7 +411,8 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
   result.state = state;
   result.world_from_camera = frame.camera_from_world.Inverse();
   result.is_keyframe = new_kf != nullptr;
-  result.num_tracked_points = state == TrackingState::kNotInitialized ? 0 : tracker_.stats().num_inliers;
+  result.num_tracked_points =
+      state == TrackingState::kNotInitialized ? 0 : tracker_.stats().num_inliers;
   {
     std::lock_guard<std::mutex> lock(map_.mutex());
     result.num_map_points = map_.NumGoodPoints();
@@ -638,12 +645,14 @@ absl::StatusOr<std::unique_ptr<SlamSystem>> SlamSystem::Load(const std::string& 
   }
   const uint32_t version = r.Pod<uint32_t>();
   if (version != kFormatVersion) {
-    return absl::DataLossError(path + ": unsupported state format version " + std::to_string(version));
+    return absl::DataLossError(path + ": unsupported state format version " +
+                               std::to_string(version));
   }
   absl::StatusOr<SessionConfig> config = ReadConfig(&r);
   if (!config.ok()) return config.status();
   if (absl::Status s = config->Validate(); !s.ok()) {
-    return absl::DataLossError("state file has an invalid configuration: " + std::string(s.message()));
+    return absl::DataLossError("state file has an invalid configuration: " +
+                               std::string(s.message()));
   }
   auto sys = std::make_unique<SlamSystemImpl>(*config);
   if (absl::Status s = sys->Restore(&r); !s.ok()) {

@@ -1,14 +1,14 @@
 #include "slam/tracking/camera_tracker.h"
 
+#include <glog/logging.h>
+
 #include <algorithm>
 #include <climits>
 #include <cmath>
 #include <cstring>
-#include <set>
-
-#include <glog/logging.h>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/eigen.hpp>
+#include <set>
 
 #include "slam/features/feature_matcher.h"
 
@@ -104,7 +104,8 @@ TrackingState CameraTracker::Track(map::Frame* frame, map::Map* map) {
     relocalized = ok;
     path = TrackingPath::kRelocalization;
   }
-  const bool recent_reloc = frame->id - last_reloc_frame_id_ < options_.recent_relocalization_frames;
+  const bool recent_reloc =
+      frame->id - last_reloc_frame_id_ < options_.recent_relocalization_frames;
   if (ok) ok = TrackLocalMap(frame, map, relocalized || recent_reloc);
 
   if (ok) {
@@ -175,8 +176,8 @@ void CameraTracker::UpdateLastFrame(map::Map* map) {
   int count = 0;
   for (const auto& [depth, i] : by_depth) {
     if (!last.matched[i]) {
-      const Eigen::Vector3d pc = camera_.Backproject(
-          Eigen::Vector2d(f.keypoints[i].pt.x, f.keypoints[i].pt.y), depth);
+      const Eigen::Vector3d pc =
+          camera_.Backproject(Eigen::Vector2d(f.keypoints[i].pt.x, f.keypoints[i].pt.y), depth);
       last.p_in_world[i] = world_from_last * pc;
       last.matched[i] = 1;
       last.point_ids[i] = -1;
@@ -191,8 +192,7 @@ int CameraTracker::SearchLastFrame(map::Frame* frame, const map::Frame& last, fl
   const auto& lf = *last.features;
   const geometry::SE3d& T = frame->camera_from_world;
   // Motion along the optical axis decides which levels can match.
-  const Eigen::Vector3d t_last_cur =
-      (last.camera_from_world * T.Inverse()).translation();
+  const Eigen::Vector3d t_last_cur = (last.camera_from_world * T.Inverse()).translation();
   const bool forward = t_last_cur.z() > camera_.baseline;
   const bool backward = -t_last_cur.z() > camera_.baseline;
   features::OrientationFilter rot;
@@ -211,7 +211,8 @@ int CameraTracker::SearchLastFrame(map::Frame* frame, const map::Frame& last, fl
     } else if (backward) {
       idx = f.grid.FeaturesInArea(f.keypoints, uvr.x(), uvr.y(), r, 0, level);
     } else {
-      idx = f.grid.FeaturesInArea(f.keypoints, uvr.x(), uvr.y(), r, std::max(0, level - 1), level + 1);
+      idx = f.grid.FeaturesInArea(
+          f.keypoints, uvr.x(), uvr.y(), r, std::max(0, level - 1), level + 1);
     }
     int best = INT_MAX, best_j = -1;
     const uint8_t* d = lf.descriptor(i);
@@ -256,8 +257,8 @@ int CameraTracker::SearchKeyFramePoints(map::Frame* frame,
     if (!camera_.InImage(uvr.head<2>())) continue;
     const int level = kff.keypoints[i].octave;
     const float r = radius * pyramid_.scale[level];
-    const auto idx = f.grid.FeaturesInArea(f.keypoints, uvr.x(), uvr.y(), r,
-                                           std::max(0, level - 2), level + 2);
+    const auto idx =
+        f.grid.FeaturesInArea(f.keypoints, uvr.x(), uvr.y(), r, std::max(0, level - 2), level + 2);
     int best = INT_MAX, second = INT_MAX, best_j = -1;
     for (int j : idx) {
       if (frame->matched[j] || !f.is_static[j]) continue;
@@ -338,7 +339,8 @@ bool PoseFromMatchesRansac(const geometry::StereoCamera& camera, map::Frame* fra
   for (int i = 0; i < f.size(); ++i) {
     if (!frame->matched[i]) continue;
     const Eigen::Vector3d& p = frame->p_in_world[i];
-    obj.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+    obj.emplace_back(
+        static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
     img.push_back(f.keypoints[i].pt);
     index.push_back(i);
   }
@@ -346,7 +348,17 @@ bool PoseFromMatchesRansac(const geometry::StereoCamera& camera, map::Frame* fra
   cv::Mat K = (cv::Mat_<double>(3, 3) << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1);
   cv::Mat rvec, tvec;
   std::vector<int> inliers;
-  if (!cv::solvePnPRansac(obj, img, K, cv::noArray(), rvec, tvec, false, 300, 3.0f, 0.99, inliers,
+  if (!cv::solvePnPRansac(obj,
+                          img,
+                          K,
+                          cv::noArray(),
+                          rvec,
+                          tvec,
+                          false,
+                          300,
+                          3.0f,
+                          0.99,
+                          inliers,
                           cv::SOLVEPNP_EPNP) ||
       inliers.size() < 10) {
     return false;
@@ -397,7 +409,8 @@ bool CameraTracker::TrackReferenceKeyFrame(map::Frame* frame, map::Map* map) {
   }
   cv::Mat train(static_cast<int>(pids.size()), 32, CV_8UC1);
   for (size_t k = 0; k < pids.size(); ++k) {
-    std::memcpy(train.ptr<uint8_t>(static_cast<int>(k)), map->point(pids[k])->descriptor.data(), 32);
+    std::memcpy(
+        train.ptr<uint8_t>(static_cast<int>(k)), map->point(pids[k])->descriptor.data(), 32);
   }
   const auto m = features::MatchRatio(query, train, 0.75f, kThresholdHigh);
   features::OrientationFilter rot;
@@ -468,7 +481,8 @@ int CameraTracker::SearchLocalPoints(map::Frame* frame,
       }
     }
     if (best_j < 0 || best > kThresholdHigh) continue;
-    if (best_level == second_level && static_cast<float>(best) > 0.8f * static_cast<float>(second)) {
+    if (best_level == second_level &&
+        static_cast<float>(best) > 0.8f * static_cast<float>(second)) {
       continue;
     }
     frame->SetMatch(best_j, p->id, p->p_in_world);
@@ -502,7 +516,8 @@ bool CameraTracker::TrackLocalMap(map::Frame* frame, map::Map* map, bool just_re
     }
   }
   const size_t direct = local_kfs.size();
-  for (size_t k = 0; k < direct && static_cast<int>(local_kfs.size()) < options_.max_local_keyframes;
+  for (size_t k = 0;
+       k < direct && static_cast<int>(local_kfs.size()) < options_.max_local_keyframes;
        ++k) {
     const map::KeyFrame* kf = map->keyframe(local_kfs[k]);
     for (int64_t nb : kf->BestCovisible(10)) {
@@ -562,7 +577,8 @@ bool CameraTracker::Relocalize(map::Frame* frame, map::Map* map) {
   std::vector<Candidate> candidates;
   int tried = 0;
   for (auto it = map->keyframes().rbegin();
-       it != map->keyframes().rend() && tried < options_.relocalization_keyframes; ++it, ++tried) {
+       it != map->keyframes().rend() && tried < options_.relocalization_keyframes;
+       ++it, ++tried) {
     const map::KeyFrame& kf = *it->second;
     std::vector<int64_t> pids;
     std::vector<int> kps;
@@ -575,12 +591,14 @@ bool CameraTracker::Relocalize(map::Frame* frame, map::Map* map) {
     if (pids.size() < 15) continue;
     cv::Mat train(static_cast<int>(pids.size()), 32, CV_8UC1);
     for (size_t k = 0; k < pids.size(); ++k) {
-      std::memcpy(train.ptr<uint8_t>(static_cast<int>(k)), map->point(pids[k])->descriptor.data(), 32);
+      std::memcpy(
+          train.ptr<uint8_t>(static_cast<int>(k)), map->point(pids[k])->descriptor.data(), 32);
     }
     const auto m = features::MatchRatio(query, train, 0.75f, kThresholdLow);
     features::OrientationFilter rot;
     for (size_t k = 0; k < m.size(); ++k) {
-      rot.Add(kf.features->keypoints[kps[m[k].second]].angle, f.keypoints[query_index[m[k].first]].angle,
+      rot.Add(kf.features->keypoints[kps[m[k].second]].angle,
+              f.keypoints[query_index[m[k].first]].angle,
               static_cast<int>(k));
     }
     std::vector<char> bad(m.size(), 0);
@@ -591,23 +609,36 @@ bool CameraTracker::Relocalize(map::Frame* frame, map::Map* map) {
     }
     if (c.matches.size() >= 15) candidates.push_back(std::move(c));
   }
-  std::stable_sort(candidates.begin(), candidates.end(), [](const Candidate& a, const Candidate& b) {
-    return a.matches.size() > b.matches.size();
-  });
+  std::stable_sort(
+      candidates.begin(), candidates.end(), [](const Candidate& a, const Candidate& b) {
+        return a.matches.size() > b.matches.size();
+      });
   if (candidates.size() > 5) candidates.resize(5);
 
-  cv::Mat K = (cv::Mat_<double>(3, 3) << camera_.fx, 0, camera_.cx, 0, camera_.fy, camera_.cy, 0, 0, 1);
+  cv::Mat K =
+      (cv::Mat_<double>(3, 3) << camera_.fx, 0, camera_.cx, 0, camera_.fy, camera_.cy, 0, 0, 1);
   for (const Candidate& c : candidates) {
     std::vector<cv::Point3f> obj;
     std::vector<cv::Point2f> img;
     for (const auto& [kp, pid] : c.matches) {
       const Eigen::Vector3d& p = map->point(pid)->p_in_world;
-      obj.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+      obj.emplace_back(
+          static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
       img.push_back(f.keypoints[kp].pt);
     }
     cv::Mat rvec, tvec;
     std::vector<int> inliers;
-    if (!cv::solvePnPRansac(obj, img, K, cv::noArray(), rvec, tvec, false, 300, 3.0f, 0.99, inliers,
+    if (!cv::solvePnPRansac(obj,
+                            img,
+                            K,
+                            cv::noArray(),
+                            rvec,
+                            tvec,
+                            false,
+                            300,
+                            3.0f,
+                            0.99,
+                            inliers,
                             cv::SOLVEPNP_EPNP)) {
       continue;
     }

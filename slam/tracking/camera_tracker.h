@@ -33,8 +33,8 @@ struct TrackerOptions {
   int min_relocalized_inliers = 50;
   int recent_relocalization_frames = 10;  // frames that need the higher bar
   int max_local_keyframes = 80;
-  int relocalization_keyframes = 40;    // most recent keyframes tried
-  int max_temporary_points = 100;       // extra VO points kept from last frame
+  int relocalization_keyframes = 40;  // most recent keyframes tried
+  int max_temporary_points = 100;     // extra VO points kept from last frame
   PoseOptimizerOptions pose;
 };
 
@@ -43,9 +43,9 @@ enum class TrackingPath { kNone = 0, kMotionModel, kReferenceKeyFrame, kRelocali
 // Statistics the keyframe policy needs (and diagnostics).
 struct TrackingStats {
   TrackingPath path = TrackingPath::kNone;  // how the first pose was found
-  int num_inliers = 0;          // matched map points that are inliers
-  int num_tracked_close = 0;    // close stereo keypoints with an inlier map point
-  int num_untracked_close = 0;  // close stereo keypoints without
+  int num_inliers = 0;                      // matched map points that are inliers
+  int num_tracked_close = 0;                // close stereo keypoints with an inlier map point
+  int num_untracked_close = 0;              // close stereo keypoints without
 };
 
 class CameraTracker {

@@ -1,8 +1,7 @@
 #include "slam/tracking/pose_optimizer.h"
 
-#include <cmath>
-
 #include <Eigen/Cholesky>
+#include <cmath>
 
 namespace twist::tracking {
 
@@ -30,13 +29,15 @@ int OptimizePose(const geometry::StereoCamera& camera,
         if (pc.z() <= 1e-6) continue;
         Eigen::Matrix<double, 3, 6> d_pc_d_xi;
         d_pc_d_xi.leftCols<3>().setIdentity();
-        d_pc_d_xi.rightCols<3>() << 0.0, pc.z(), -pc.y(), -pc.z(), 0.0, pc.x(), pc.y(), -pc.x(), 0.0;
+        d_pc_d_xi.rightCols<3>() << 0.0, pc.z(), -pc.y(), -pc.z(), 0.0, pc.x(), pc.y(), -pc.x(),
+            0.0;
         const bool stereo = o.u_right >= 0.0;
         Eigen::Vector3d uvr;
         Eigen::Matrix3d d_uvr_d_pc;
         camera.ProjectStereoChecked(pc, &uvr, &d_uvr_d_pc);
         const int m = stereo ? 3 : 2;
-        Eigen::Vector3d r(uvr.x() - o.uv.x(), uvr.y() - o.uv.y(), stereo ? uvr.z() - o.u_right : 0.0);
+        Eigen::Vector3d r(
+            uvr.x() - o.uv.x(), uvr.y() - o.uv.y(), stereo ? uvr.z() - o.u_right : 0.0);
         const double chi2 = r.head(m).squaredNorm() * o.inv_sigma2;
         double w = o.inv_sigma2;
         if (robust) {

@@ -14,9 +14,8 @@
 // (T <- Exp(δ) T), which gives the simplest Jacobian [I, -[p_c]x].
 #pragma once
 
-#include <vector>
-
 #include <Eigen/Core>
+#include <vector>
 
 #include "slam/geometry/se3.h"
 #include "slam/geometry/stereo_camera.h"
@@ -28,7 +27,7 @@ struct PoseObservation {
   Eigen::Vector2d uv;
   double u_right = -1.0;  // < 0: monocular observation
   double inv_sigma2 = 1.0;
-  bool outlier = false;   // output (input: initial classification)
+  bool outlier = false;  // output (input: initial classification)
 };
 
 struct PoseOptimizerOptions {

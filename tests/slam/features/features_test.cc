@@ -1,8 +1,8 @@
-#include <cmath>
-#include <random>
-
 #include <gtest/gtest.h>
+
+#include <cmath>
 #include <opencv2/imgproc.hpp>
+#include <random>
 
 #include "slam/features/feature_matcher.h"
 #include "slam/features/orb_extractor.h"
@@ -55,7 +55,8 @@ TEST(OrbExtractor, RespectsBudgetAndSpreadsOverTheImage) {
   int counts[12] = {0};
   int max_level = 0;
   for (const auto& kp : kps) {
-    counts[std::min(3, static_cast<int>(kp.pt.x / 160)) + 4 * std::min(2, static_cast<int>(kp.pt.y / 120))]++;
+    counts[std::min(3, static_cast<int>(kp.pt.x / 160)) +
+           4 * std::min(2, static_cast<int>(kp.pt.y / 120))]++;
     max_level = std::max(max_level, kp.octave);
   }
   for (int c : counts) EXPECT_GT(c, 25);
@@ -109,7 +110,8 @@ TEST(OrbExtractor, DescriptorsAreRotationInvariant) {
     // (x, y) -> (H - 1 - y, x) for a clockwise rotation.
     const cv::Point2f p = ka[matches[i].first].pt;
     const cv::Point2f expected(img.rows - 1 - p.y, p.x);
-    if (cv::norm(expected - kb[matches[i].second].pt) < 3.0 * (1 << ka[matches[i].first].octave)) ++good;
+    if (cv::norm(expected - kb[matches[i].second].pt) < 3.0 * (1 << ka[matches[i].first].octave))
+      ++good;
   }
   EXPECT_GT(kept, 100);
   EXPECT_GT(good, 0.9 * kept);

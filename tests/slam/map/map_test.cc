@@ -1,6 +1,6 @@
-#include <gtest/gtest.h>
-
 #include "slam/map/map.h"
+
+#include <gtest/gtest.h>
 
 namespace twist::map {
 namespace {

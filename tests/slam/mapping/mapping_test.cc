@@ -1,7 +1,7 @@
+#include <gtest/gtest.h>
+
 #include <random>
 #include <set>
-
-#include <gtest/gtest.h>
 
 #include "slam/mapping/local_mapper.h"
 #include "tests/slam/tracking/synthetic_features.h"
@@ -82,11 +82,13 @@ TEST_F(MapperTest, LocalBundleAdjustmentReducesPoseAndPointErrors) {
     std::lock_guard<std::mutex> lock(map_.mutex());
     for (size_t i = 1; i < kfs.size(); ++i) {
       Eigen::Matrix<double, 6, 1> d;
-      d << 0.05 * n(rng), 0.05 * n(rng), 0.05 * n(rng), 0.003 * n(rng), 0.003 * n(rng), 0.003 * n(rng);
+      d << 0.05 * n(rng), 0.05 * n(rng), 0.05 * n(rng), 0.003 * n(rng), 0.003 * n(rng),
+          0.003 * n(rng);
       map::KeyFrame* kf = map_.keyframe(kfs[i]);
       kf->camera_from_world = geometry::SE3d::Exp(d) * kf->camera_from_world;
     }
-    for (const auto& [id, p] : map_.points()) p->p_in_world += 0.05 * Eigen::Vector3d(n(rng), n(rng), n(rng));
+    for (const auto& [id, p] : map_.points())
+      p->p_in_world += 0.05 * Eigen::Vector3d(n(rng), n(rng), n(rng));
     for (int64_t id : kfs) map_.UpdateConnections(map_.keyframe(id));
   }
   auto pose_error = [&]() {

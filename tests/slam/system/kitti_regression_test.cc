@@ -11,11 +11,11 @@
 // add ~0.027 deg/frame to the mean. ORB-SLAM2 measures 0.050 on the same clip
 // (BASELINES.md). The threshold guards against regressions from the current
 // level instead.
-#include <cstdio>
-#include <string>
-
 #include <gtest/gtest.h>
 #include <sys/stat.h>
+
+#include <cstdio>
+#include <string>
 
 #include "slam/io/metrics.h"
 #include "slam/io/sequence.h"
@@ -28,7 +28,9 @@ constexpr double kMaxRpeT = 0.02;   // m/frame (target 0.015)
 constexpr double kMaxRpeR = 0.065;  // deg/frame (see above; measured 0.051)
 constexpr double kMaxAte = 0.15;    // m after SE(3) alignment (measured 0.094)
 
-std::string DataDir() { return std::string(TWIST_SOURCE_DIR) + "/../shared/data/kitti_odometry_06_f0-50"; }
+std::string DataDir() {
+  return std::string(TWIST_SOURCE_DIR) + "/../shared/data/kitti_odometry_06_f0-50";
+}
 
 bool Exists(const std::string& p) {
   struct stat st;
@@ -57,7 +59,10 @@ TEST(KittiRegression, Odometry06First51FramesSynchronous) {
   auto m = io::EvaluateCamera((*seq)->gt_world_from_camera(), est);
   ASSERT_TRUE(m.ok()) << m.status();
   std::printf("KITTI 06 f0-50: RPE_t %.4f m/frame, RPE_R %.4f deg/frame, ATE %.4f m, lost %d\n",
-              m->rpe_t, m->rpe_r_deg, m->ate_rmse, lost);
+              m->rpe_t,
+              m->rpe_r_deg,
+              m->ate_rmse,
+              lost);
   EXPECT_EQ(lost, 0);
   EXPECT_LE(m->rpe_t, kMaxRpeT);
   EXPECT_LE(m->rpe_r_deg, kMaxRpeR);

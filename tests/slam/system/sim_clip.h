@@ -1,15 +1,14 @@
 // Rendered synthetic clips (slam/sim) for the SlamSystem tests.
 #pragma once
 
+#include <glog/logging.h>
+#include <gtest/gtest.h>
+#include <unistd.h>
+
 #include <cmath>
 #include <cstring>
 #include <string>
 #include <vector>
-
-#include <unistd.h>
-
-#include <glog/logging.h>
-#include <gtest/gtest.h>
 
 #include "slam/sim/renderer.h"
 #include "slam/sim/scenarios.h"
@@ -46,7 +45,8 @@ inline Clip MakeClip(const std::string& scenario_name, int n, double scale, bool
     sim::Exposure left, right;
     left.noise_seed = 2 * k + 1;
     right.noise_seed = 2 * k + 2;
-    const sim::StereoRender r = renderer.RenderStereo(scenario->scene, scenario->TimeOf(k), pose, left, right);
+    const sim::StereoRender r =
+        renderer.RenderStereo(scenario->scene, scenario->TimeOf(k), pose, left, right);
     StereoFrame f;
     f.index = k;
     f.timestamp_ns = static_cast<int64_t>(std::llround(scenario->TimeOf(k) * 1e9)) + 1000;

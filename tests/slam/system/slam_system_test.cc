@@ -1,20 +1,20 @@
 // SlamSystem on rendered synthetic streets (slam/sim, exact ground truth):
 // input validation, determinism, exact save/load resume, accuracy, and the
 // background mapping mode.
+#include "slam/system/slam_system.h"
+
+#include <glog/logging.h>
+#include <gtest/gtest.h>
+#include <unistd.h>
+
 #include <cstdio>
 #include <cstring>
 #include <fstream>
-#include <unistd.h>
-
-#include <glog/logging.h>
 #include <opencv2/imgproc.hpp>
-
-#include <gtest/gtest.h>
 
 #include "slam/io/metrics.h"
 #include "slam/sim/renderer.h"
 #include "slam/sim/scenarios.h"
-#include "slam/system/slam_system.h"
 #include "tests/slam/system/sim_clip.h"
 
 namespace twist {
@@ -124,7 +124,8 @@ TEST(SlamSystem, SaveLoadResumesWithIdenticalResults) {
 }
 
 TEST(SlamSystem, LoadRejectsMissingAndCorruptFiles) {
-  EXPECT_EQ(SlamSystem::Load(TempPath("does_not_exist")).status().code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ(SlamSystem::Load(TempPath("does_not_exist")).status().code(),
+            absl::StatusCode::kNotFound);
   const std::string garbage = TempPath("garbage");
   {
     std::ofstream out(garbage, std::ios::binary);

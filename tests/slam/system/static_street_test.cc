@@ -1,9 +1,9 @@
 // The synthetic target: static street, 100 frames, ATE <= 0.05 m.
 // Rendered at 0.8 x the KITTI-like resolution to keep the binary well under a
 // minute on 2 shared cores (measured ATE 0.034 m; 0.016 m at full resolution).
-#include <cstdio>
-
 #include <gtest/gtest.h>
+
+#include <cstdio>
 
 #include "slam/io/metrics.h"
 #include "tests/slam/system/sim_clip.h"
@@ -26,7 +26,9 @@ TEST(SlamSystem, StaticStreetHundredFramesAte) {
   auto m = io::EvaluateCamera(clip.gt, est);
   ASSERT_TRUE(m.ok());
   std::printf("static_street 100 frames: ATE %.4f m, RPE_t %.4f m/frame, RPE_R %.4f deg/frame\n",
-              m->ate_rmse, m->rpe_t, m->rpe_r_deg);
+              m->ate_rmse,
+              m->rpe_t,
+              m->rpe_r_deg);
   EXPECT_EQ(not_ok, 0);
   EXPECT_LE(m->ate_rmse, kMaxStaticStreetAte);
   const MapSnapshot snap = (*sys)->Snapshot();

@@ -5,10 +5,9 @@
 // descriptor with a few flipped bits.
 #pragma once
 
+#include <Eigen/Core>
 #include <random>
 #include <vector>
-
-#include <Eigen/Core>
 
 #include "slam/features/orb_extractor.h"
 #include "slam/map/map.h"
@@ -71,8 +70,12 @@ inline std::shared_ptr<map::FrameFeatures> Observe(const FeatureWorld& world,
     if (!cam.InImage(uvr.head<2>(), 20.0)) continue;
     const int level = level_dist(rng);
     const double s = pyramid.scale[level] * pixel_noise;
-    cv::KeyPoint kp(static_cast<float>(uvr.x() + s * noise(rng)), static_cast<float>(uvr.y() + s * noise(rng)),
-                    31.f * pyramid.scale[level], 0.f, 50.f, level);
+    cv::KeyPoint kp(static_cast<float>(uvr.x() + s * noise(rng)),
+                    static_cast<float>(uvr.y() + s * noise(rng)),
+                    31.f * pyramid.scale[level],
+                    0.f,
+                    50.f,
+                    level);
     f.keypoints.push_back(kp);
     if (pc.z() < 30.0) {
       const float ur = static_cast<float>(uvr.z() + s * noise(rng));

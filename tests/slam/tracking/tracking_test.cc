@@ -1,6 +1,6 @@
-#include <random>
-
 #include <gtest/gtest.h>
+
+#include <random>
 
 #include "slam/mapping/local_mapper.h"
 #include "slam/tracking/camera_tracker.h"
