@@ -2,7 +2,9 @@
 // KITTI-tracking-with-masks layout (DESIGN.md §5, docs/sim.md).
 #include <unistd.h>
 
+#include <atomic>
 #include <cctype>
+#include <csignal>
 #include <cstdio>
 #include <cstring>
 #include <iostream>
@@ -17,6 +19,10 @@ namespace twist::cli {
 namespace {
 
 constexpr char kCommand[] = "generate";
+
+// Set by SIGINT/SIGTERM: the writer stops and removes its temporary output.
+std::atomic<bool> g_cancel{false};
+extern "C" void OnSignal(int) { g_cancel.store(true); }
 
 ArgParser MakeParser() {
   ArgParser parser(kCommand);
@@ -92,6 +98,9 @@ int GenerateCommand(int argc, char** argv) {
     if (tty) std::fprintf(stderr, "\rgenerate: frame %d/%d", done, total);
     if (tty && done == total) std::fprintf(stderr, "\n");
   };
+  options.cancel = &g_cancel;
+  std::signal(SIGINT, OnSignal);
+  std::signal(SIGTERM, OnSignal);
   sim::WriteStats stats;
   const absl::Status status = sim::WriteSequence(*scenario, out, options, progress, &stats);
   if (!status.ok()) return Fail(kCommand, std::string(status.message()), 1);

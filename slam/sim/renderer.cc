@@ -150,9 +150,17 @@ Renderer::Renderer(const geometry::StereoCamera& camera, const RenderOptions& op
 }
 
 std::vector<Quad> Renderer::QuadsAt(const Scene& scene, double t) {
+  return QuadsAt(scene, t, Eigen::Vector3d::Zero(), std::numeric_limits<double>::infinity());
+}
+
+std::vector<Quad> Renderer::QuadsAt(const Scene& scene,
+                                    double t,
+                                    const Eigen::Vector3d& centre,
+                                    double radius) {
   std::vector<Quad> quads = scene.static_quads;
   for (const SceneObject& object : scene.objects) {
     const geometry::SE3d world_from_object = object.WorldFromObject(t);
+    if ((world_from_object.translation() - centre).norm() > radius) continue;
     for (const BoxPart& part : object.parts) {
       AppendBoxQuads(part, world_from_object, object.panoptic(), &quads);
     }
@@ -238,6 +246,9 @@ void Renderer::Shade(const Scene& scene,
   for (const SceneObject& object : scene.objects) {
     if (object.class_id != kClassCar) continue;
     const geometry::SE3d world_from_object = object.WorldFromObject(t);
+    // Beyond ~150 m the shadow is less than a pixel tall.
+    if ((world_from_object.translation() - world_from_camera.translation()).norm() > 150.0)
+      continue;
     GroundShadow g;
     g.object_from_world = world_from_object.Inverse();
     g.half_l = 0.5 * object.l + 0.12;
@@ -357,7 +368,8 @@ void Renderer::RenderStereo(const Scene& scene,
                             const Exposure& right,
                             RenderScratch* scratch,
                             StereoRender* out) const {
-  const std::vector<Quad> quads = QuadsAt(scene, t);
+  const std::vector<Quad> quads =
+      QuadsAt(scene, t, world_from_left.translation(), options_.object_draw_distance);
   const geometry::SE3d world_from_right = RightFromLeftPose(world_from_left, camera_.baseline);
   auto render_right = [&]() {
     Rasterize(quads, world_from_right, &scratch->right);

@@ -23,6 +23,10 @@ struct RenderOptions {
   double blur_sigma = 0.5;   // optics PSF (pixels); 0 disables
   double near_clip = 0.1;    // metres
   int num_threads = 2;       // left and right are rendered in parallel
+  // Objects farther than this from the camera are not drawn (a car there is
+  // about 4 px long). No scenario puts objects that far from the camera
+  // within its default length; long sequences stay fast.
+  double object_draw_distance = 600.0;  // metres
 };
 
 // Per-eye photometric settings (exposure and noise stream).
@@ -58,6 +62,11 @@ class Renderer {
   // All quads of the scene at time t: the static ones and the objects' boxes
   // at their poses.
   static std::vector<Quad> QuadsAt(const Scene& scene, double t);
+  // Same, leaving out the objects farther than `radius` from `centre`.
+  static std::vector<Quad> QuadsAt(const Scene& scene,
+                                   double t,
+                                   const Eigen::Vector3d& centre,
+                                   double radius);
 
   // Rasterises `quads` (world frame) seen from world_from_camera.
   ViewBuffers Rasterize(const std::vector<Quad>& quads,

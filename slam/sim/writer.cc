@@ -91,6 +91,10 @@ absl::Status WriteAll(const Scenario& sc,
   RenderScratch scratch;
   StereoRender frame;
   for (int i = 0; i < sc.num_frames; ++i) {
+    if (options.cancel != nullptr && options.cancel->load()) {
+      return absl::CancelledError(
+          absl::StrCat("cancelled after ", i, " of ", sc.num_frames, " frames"));
+    }
     const geometry::SE3d world_from_camera = sc.WorldFromCamera(i);
     Exposure left, right;
     FrameExposures(sc, i, &left, &right);

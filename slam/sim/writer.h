@@ -16,6 +16,7 @@
 // that looks complete.
 #pragma once
 
+#include <atomic>
 #include <functional>
 #include <string>
 
@@ -30,6 +31,10 @@ struct WriteOptions {
   std::string sequence = "0000";  // SSSS
   RenderOptions render;
   int png_compression = 1;  // 0..9 (zlib level): 1 is fast and still compact
+  // Checked before every frame: when it becomes true, writing stops with
+  // kCancelled and the temporary directory is removed (e.g. set from a
+  // SIGINT handler). Not owned; may be null.
+  const std::atomic<bool>* cancel = nullptr;
 };
 
 // Timing of a written sequence (wall clock, informative only).

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -142,6 +143,20 @@ TEST(Writer, AddsSequencesButNeverOverwritesOne) {
   const fs::path file = FreshDir("file");
   std::ofstream(file) << "x";
   EXPECT_FALSE(WriteSequence(*sc, file.string(), options).ok());
+}
+
+TEST(Writer, CancelledRunLeavesNothing) {
+  const fs::path dir = FreshDir("cancel");
+  absl::StatusOr<Scenario> sc = MakeScenario("driving", 1, 3);
+  ASSERT_TRUE(sc.ok());
+  std::atomic<bool> cancel{true};
+  WriteOptions options;
+  options.cancel = &cancel;
+  EXPECT_EQ(WriteSequence(*sc, dir.string(), options).code(), absl::StatusCode::kCancelled);
+  EXPECT_FALSE(fs::exists(dir));
+  for (const auto& e : fs::directory_iterator(dir.parent_path())) {
+    EXPECT_EQ(e.path().filename().string().find("twist_sim_cancel"), std::string::npos) << e.path();
+  }
 }
 
 TEST(Writer, CalibrationHasKittiTrackingKeys) {
