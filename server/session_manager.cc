@@ -13,6 +13,8 @@ namespace fs = std::filesystem;
 
 namespace {
 
+constexpr size_t kMaxRememberedClosed = 10000;
+
 bool SameSecret(const std::string& a, const std::string& b) {
   if (a.size() != b.size()) return false;
   unsigned char diff = 0;
@@ -279,6 +281,9 @@ absl::StatusOr<pb::SessionInfo> SessionManager::Close(const std::string& id,
   {
     absl::MutexLock lock(&mu_);
     sessions_.erase(id);
+    // Remembered so that a late stream gets "closed" rather than "not found";
+    // bounded so a long-running server does not grow.
+    if (closed_.size() >= kMaxRememberedClosed) closed_.erase(closed_.begin());
     closed_[id] = owner;
     last_save_.erase(id);
   }
@@ -396,7 +401,10 @@ void SessionManager::Housekeeping(absl::Time now) {
       {
         absl::MutexLock lock(&mu_);
         loading_.erase(s->id());
-        if (!saved) closed_[s->id()] = s->owner();
+        if (!saved) {
+          if (closed_.size() >= kMaxRememberedClosed) closed_.erase(closed_.begin());
+          closed_[s->id()] = s->owner();
+        }
       }
       if (metrics_) metrics_->SessionExpired();
       LOG(INFO) << "session " << s->id() << " idle for " << idle_s << " s: "

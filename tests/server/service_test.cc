@@ -80,7 +80,7 @@ std::vector<geometry::SE3d> EmbeddedPoses(int n, int width = kW, int height = kH
   for (int i = 0; i < n; ++i) {
     StereoFrame f;
     f.index = i;
-    f.timestamp_ns = 1'000'000'000 + i * 100'000'000;
+    f.timestamp_ns = 1'000'000'000LL + i * 100'000'000LL;
     f.left = twist::testing::TestImage(width, height, seed, i);
     f.right = twist::testing::TestImage(width, height, seed + 7, i);
     poses.push_back(fake.Process(f)->world_from_camera);
