@@ -13,6 +13,11 @@
 #                     via `git archive`, so uncommitted files cannot leak in)
 #     --frames N      frames of the synthetic sequence (default 30)
 #     --scenario S    generator scenario (default: driving)
+#     --prebuilt DIR  package the executables in DIR (twistslam-server,
+#                     twistslam, twistslam-health-probe, built on Debian 12)
+#                     instead of compiling inside the image (build arg
+#                     PREBUILT): tests everything but the compile stage, for
+#                     machines too busy to compile the project twice
 #     --rmi           remove the built image localhost/twistslam:test at the
 #                     end (default: keep it, so a rebuild reuses its layers)
 #
@@ -32,6 +37,7 @@ USE_WORKTREE=0
 FRAMES=30
 SCENARIO=driving
 REMOVE_IMAGE=0
+PREBUILT=""
 IMAGE=localhost/twistslam:test
 BASE_IMAGE=localhost/debian:bookworm
 CACHE=/var/tmp/twistslam-container
@@ -43,7 +49,8 @@ while [ $# -gt 0 ]; do
     --frames) FRAMES=$2; shift 2 ;;
     --scenario) SCENARIO=$2; shift 2 ;;
     --rmi) REMOVE_IMAGE=1; shift ;;
-    -h|--help) sed -n '2,25p' "$0"; exit 0 ;;
+    --prebuilt) PREBUILT=$2; shift 2 ;;
+    -h|--help) sed -n '2,30p' "$0"; exit 0 ;;
     *) echo "run_container_test: unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -109,9 +116,21 @@ else
   find "$CONTEXT" -exec touch -h -d @1700000000 {} +
   log "building $IMAGE from HEAD $(git -C "$ROOT" rev-parse --short HEAD)"
 fi
+BUILD_ARGS=(--build-arg BASE="$BASE_IMAGE")
+if [ -n "$PREBUILT" ]; then
+  if [ "$USE_WORKTREE" -eq 1 ]; then
+    echo "run_container_test: --prebuilt needs the HEAD context (no --worktree)" >&2; exit 2
+  fi
+  mkdir -p "$CONTEXT/prebuilt"
+  for exe in twistslam-server twistslam twistslam-health-probe; do
+    cp "$PREBUILT/$exe" "$CONTEXT/prebuilt/" || { echo "run_container_test: $PREBUILT/$exe missing" >&2; exit 2; }
+  done
+  BUILD_ARGS+=(--build-arg PREBUILT=prebuilt)
+  log "packaging prebuilt executables from $PREBUILT (no compile in the image)"
+fi
 T_BUILD=$(now)
 if podman build --format docker --isolation chroot \
-     --build-arg BASE="$BASE_IMAGE" -t "$IMAGE" \
+     "${BUILD_ARGS[@]}" -t "$IMAGE" \
      -f "$CONTEXT/deploy/Dockerfile" "$CONTEXT" >"$WORK/build.log" 2>&1; then
   BUILD_S=$(( $(now) - T_BUILD ))
   ok "image build (${BUILD_S} s)"
