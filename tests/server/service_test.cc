@@ -667,3 +667,71 @@ TEST(Service, StalledEngineBackPressuresTheClient) {
 
 }  // namespace
 }  // namespace twist::server
+
+namespace twist::server {
+namespace {
+
+// A one-message call on any method (gRPC frames unary and streaming calls
+// alike): returns the response bytes, or "" on error.
+std::string RawCall(const std::string& address, const std::string& method, const std::string& request_bytes) {
+  auto channel = grpc::CreateChannel(address, grpc::InsecureChannelCredentials());
+  grpc::GenericStub stub(channel);
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(10));
+  const grpc::Slice slice(request_bytes);
+  grpc::ByteBuffer request(&slice, 1), response;
+  std::promise<grpc::Status> done;
+  stub.UnaryCall(&context, method, grpc::StubOptions(), &request, &response,
+                 [&done](grpc::Status s) { done.set_value(s); });
+  if (!done.get_future().get().ok()) return "";
+  std::vector<grpc::Slice> slices;
+  response.Dump(&slices);
+  std::string bytes;
+  for (const auto& s : slices) bytes.append(reinterpret_cast<const char*>(s.begin()), s.size());
+  return bytes;
+}
+
+TEST(Service, ReflectionListsTheServiceAndHealthTurnsNotServingOnShutdown) {
+  auto gate = std::make_shared<absl::Notification>();
+  ServerOptions options = TestOptions();
+  options.drain_timeout_s = 2;
+  absl::StatusOr<std::unique_ptr<TwistServer>> started = TwistServer::Start(options, FakeFactory(0, gate));
+  ASSERT_TRUE(started.ok());
+  auto server = std::move(*started);
+  // ServerReflectionRequest{list_services: ""} = field 7, length 0.
+  const std::string listing =
+      RawCall(server->address(), "/grpc.reflection.v1alpha.ServerReflection/ServerReflectionInfo",
+              std::string("\x3a\x00", 2));
+  EXPECT_THAT(listing, HasSubstr("twistslam.v1.SlamService"));
+  EXPECT_THAT(listing, HasSubstr("grpc.health.v1.Health"));
+  EXPECT_EQ(HealthStatus(server->address()), 1);
+
+  // A stream whose frame is stuck in the engine keeps the drain busy.
+  auto client = Connect(server->address());
+  auto created = client->CreateSession(MakeCreateRequest(kW, kH));
+  Collector c;
+  ASSERT_TRUE(client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
+  ASSERT_TRUE(client->Send(MakeTestFrame(0, kW, kH)).ok());
+  ASSERT_TRUE(client->Send(MakeTestFrame(1, kW, kH)).ok());
+  // Frame 0 is in the (stalled) engine once frame 1 waits in the queue.
+  for (int i = 0; i < 2000 && client->ListSessions()->at(0).queue_depth() < 1; ++i) {
+    absl::SleepFor(absl::Milliseconds(5));
+  }
+  auto done = std::async(std::launch::async, [&] { server->Shutdown(); });
+  int status = 1;
+  std::string seen;
+  for (int i = 0; i < 1000 && status == 1; ++i) {
+    status = HealthStatus(server->address());
+    seen += std::to_string(status) + " ";
+    absl::SleepFor(absl::Milliseconds(2));
+  }
+  SCOPED_TRACE(seen);
+  EXPECT_EQ(status, 2);  // NOT_SERVING while draining
+  EXPECT_TRUE(absl::IsUnavailable(client->CreateSession(MakeCreateRequest(kW, kH)).status()));
+  gate->Notify();
+  ASSERT_EQ(done.wait_for(kMustFinish), std::future_status::ready);
+  client->DropConnectionForTesting();
+}
+
+}  // namespace
+}  // namespace twist::server
