@@ -19,6 +19,7 @@
 #include "slam/map/map.h"
 #include "slam/mapping/local_mapper.h"
 #include "slam/system/binary_io.h"
+#include "slam/system/object_stage.h"
 #include "slam/tracking/camera_tracker.h"
 
 namespace twist {
@@ -209,6 +210,9 @@ class SlamSystemImpl final : public SlamSystem {
     if (config_.options.mapping_mode == MappingMode::kBackground) {
       thread_ = std::make_unique<mapping::MappingThread>(&mapper_, &map_);
     }
+    if (config_.options.track_objects && config_.options.use_masks) {
+      objects_ = std::make_unique<ObjectStage>(config_);
+    }
   }
   ~SlamSystemImpl() override { Shutdown(); }
 
@@ -235,6 +239,7 @@ class SlamSystemImpl final : public SlamSystem {
   tracking::CameraTracker tracker_;
   mapping::LocalMapper mapper_;
   std::unique_ptr<mapping::MappingThread> thread_;
+  std::unique_ptr<ObjectStage> objects_;  // dynamic objects (object_stage.h); null when off
   int64_t frames_processed_ = 0;
   bool has_last_timestamp_ = false;
   int64_t last_timestamp_ns_ = 0;
@@ -287,7 +292,10 @@ std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
   std::vector<cv::Mat> left_levels, right_levels;
   std::thread right_thread(
       [&] { orb_.Extract(right, cv::Mat(), &right_kps, &right_desc, &right_levels); });
-  orb_.Extract(left, cv::Mat(), &f.keypoints, &f.descriptors, &left_levels);
+  // Keypoints favoured inside dynamic segments when objects are tracked.
+  const cv::Mat favour =
+      objects_ != nullptr ? ObjectStage::FavourMask(frame.panoptic, config_.classes) : cv::Mat();
+  orb_.Extract(left, favour, &f.keypoints, &f.descriptors, &left_levels);
   right_thread.join();
   timings->push_back({"orb", sw.ElapsedMs()});
   sw.Restart();
@@ -406,6 +414,30 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
       result.timings.push_back({"mapping", t.process_ms});
       result.timings.push_back({"ba", t.ba_ms});
     }
+  }
+
+  if (objects_ != nullptr && !input.panoptic.empty() &&
+      (state == TrackingState::kOk || state == TrackingState::kRelocalized)) {
+    sw.Restart();
+    ObjectStageInput oi;
+    oi.frame_index = input.index;
+    oi.timestamp_ns = input.timestamp_ns;
+    oi.left = ToGray(input.left);
+    oi.panoptic = input.panoptic;
+    oi.flow = input.flow;
+    oi.features = frame.features.get();
+    oi.camera_from_world = frame.camera_from_world;
+    // The input was validated above: a failure here is a bug, not bad input,
+    // and must not leave the session half-updated.
+    absl::StatusOr<ObjectStageOutput> o = objects_->Process(oi);
+    if (o.ok()) {
+      result.objects = std::move(o->objects);
+      result.cluster_events = std::move(o->cluster_events);
+      if (o->ba_ms > 0.0) result.timings.push_back({"objects_ba", o->ba_ms});
+    } else {
+      LOG(ERROR) << "object stage: " << o.status();
+    }
+    result.timings.push_back({"objects", sw.ElapsedMs()});
   }
 
   result.state = state;

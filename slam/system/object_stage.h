@@ -1,0 +1,108 @@
+// The dynamic-object stage of one session (TwistSLAM §IV), run by
+// SlamSystem::Process after the camera has been tracked on static points:
+//
+//  1. panoptic segments -> detections: instances of dynamic classes (with
+//     their masks) and the "stuff" segments of plane classes (road, wall...);
+//  2. ClusterAssociator: detections -> stable clusters (robust to instance-id
+//     swaps), created / lost / removed events;
+//  3. one ClusterPlane per plane class, refitted by RANSAC on the world
+//     positions of that class's stereo keypoints as they accumulate
+//     ("plane updated" events carry the plane);
+//  4. each dynamic cluster's joint from its class (ClassTable) and its
+//     parent's plane: planar joints lie in the parent plane; axis joints (a
+//     door's hinge) get a vertical axis in the parent plane at the cluster's
+//     edge nearest to the camera when first seen (a heuristic: the hinge is
+//     not observable before the door moves), fixed for the cluster's life;
+//  5. ObjectTracker: object poses and constrained twists;
+//  6. optionally a dynamic bundle adjustment of the objects' poses and points
+//     over the last frames (camera poses fixed, from static tracking).
+//
+// Per-session state only (no globals); deterministic for a given input
+// sequence (RANSAC draws from a generator seeded with SlamOptions::seed).
+// Not persisted by SlamSystem::Save: objects restart after a resume.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <opencv2/core.hpp>
+#include <random>
+#include <tuple>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "slam/common/frame_result.h"
+#include "slam/geometry/se3.h"
+#include "slam/joints/joint.h"
+#include "slam/map/map.h"
+#include "slam/objects/object_tracker.h"
+#include "slam/semantic/cluster_association.h"
+#include "slam/semantic/plane_fitting.h"
+#include "slam/system/slam_options.h"
+
+namespace twist {
+
+struct ObjectStageOptions {
+  int min_segment_pixels = 400;     // smaller instance segments are ignored
+  double max_plane_depth_m = 30.0;  // plane points further away are not used
+  int max_plane_points = 4000;      // per plane class (oldest dropped)
+  double plane_inlier_m = 0.05;     // RANSAC inlier distance
+  // Dynamic BA over the last frames (0: off). The window is also bounded by
+  // SlamOptions::temporal_window_s.
+  int ba_window_frames = 0;
+  int ba_iterations = 5;
+};
+
+struct ObjectStageInput {
+  int64_t frame_index = 0;
+  int64_t timestamp_ns = 0;
+  cv::Mat left;                                  // CV_8UC1
+  cv::Mat panoptic;                              // CV_16UC1 / CV_32SC1, class * 1000 + instance
+  cv::Mat flow;                                  // optional CV_32FC2, previous left -> this left
+  const map::FrameFeatures* features = nullptr;  // the frame's stereo keypoints
+  geometry::SE3d camera_from_world;              // from static tracking
+};
+
+struct ObjectStageOutput {
+  std::vector<ObjectResult> objects;
+  std::vector<ClusterEvent> cluster_events;
+  double ba_ms = 0.0;
+};
+
+class ObjectStage {
+ public:
+  explicit ObjectStage(const SessionConfig& config,
+                       const ObjectStageOptions& options = ObjectStageOptions());
+
+  absl::StatusOr<ObjectStageOutput> Process(const ObjectStageInput& input);
+
+  // Region mask for the ORB extractor (orb_extractor.h convention): 1 on
+  // static pixels, 200 (favoured) on pixels of dynamic classes, so that
+  // objects keep enough keypoints. Empty when the panoptic image is empty.
+  static cv::Mat FavourMask(const cv::Mat& panoptic, const joints::ClassTable& classes);
+
+  const objects::ObjectTracker& tracker() const { return tracker_; }
+
+ private:
+  struct PlaneState {
+    semantic::ClusterPlane plane;
+    std::deque<Eigen::Vector3d> points;
+    int64_t cluster_id = -1;
+  };
+  joints::Joint JointFor(const objects::ObjectDetectionInput& det,
+                         const geometry::SE3d& world_from_camera,
+                         const std::vector<Eigen::Vector3d>& points_in_world);
+  void RunDynamicBa(std::vector<ObjectResult>* results);
+
+  SessionConfig config_;
+  ObjectStageOptions options_;
+  semantic::ClusterAssociator associator_;
+  std::map<int, PlaneState> planes_;  // by plane class id
+  objects::ObjectTracker tracker_;
+  std::map<int64_t, joints::Joint> axis_joints_;  // by cluster id
+  std::mt19937_64 rng_;
+  // (frame index, timestamp, camera_from_world) of the BA window.
+  std::deque<std::tuple<int64_t, int64_t, geometry::SE3d>> window_;
+};
+
+}  // namespace twist

@@ -1,0 +1,214 @@
+// End to end: rendered synthetic scenes (slam/sim) through SlamSystem with
+// panoptic masks; the objects of FrameResult are evaluated with slam/io
+// metrics against the scene's ground truth (expressed in the engine's world,
+// i.e. the first camera frame). The camera is estimated, not given.
+#include <glog/logging.h>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "slam/io/metrics.h"
+#include "slam/sim/labels.h"
+#include "slam/sim/renderer.h"
+#include "slam/sim/scenarios.h"
+#include "slam/system/slam_system.h"
+
+namespace twist {
+namespace {
+
+using geometry::SE3d;
+
+struct E2eRun {
+  std::vector<FrameResult> results;
+  std::vector<io::ObjectGtRow> gt;
+  std::vector<io::ObjectTrackRow> est;
+  std::vector<int64_t> timestamps;
+  io::MaskPixelCounts pixels;
+  std::vector<SE3d> gt_cameras;  // world_from_camera, first camera = identity
+  io::ObjectEvaluation eval;
+};
+
+E2eRun RunScenario(const std::string& name, int frames, bool constrained = true) {
+  auto scenario = sim::MakeScenario(name, 7, frames);
+  CHECK(scenario.ok()) << scenario.status();
+  const sim::Scenario& sc = *scenario;
+  sim::RenderOptions ro;
+  ro.gray = true;
+  sim::Renderer renderer(sc.camera, ro);
+  SessionConfig config;
+  config.camera = sc.camera;
+  config.options.constrain_objects = constrained;
+  auto sys = SlamSystem::Create(config);
+  CHECK(sys.ok()) << sys.status();
+  E2eRun run;
+  const SE3d cam0_from_world = sc.WorldFromCamera(0).Inverse();
+  for (int k = 0; k < frames; ++k) {
+    const SE3d world_from_camera = sc.WorldFromCamera(k);
+    sim::Exposure left, right;
+    left.noise_seed = 2 * k + 1;
+    right.noise_seed = 2 * k + 2;
+    const sim::StereoRender r =
+        renderer.RenderStereo(sc.scene, sc.TimeOf(k), world_from_camera, left, right);
+    StereoFrame f;
+    f.index = k;
+    f.timestamp_ns = static_cast<int64_t>(std::llround(sc.TimeOf(k) * 1e9)) + 1000;
+    f.left = r.left;
+    f.right = r.right;
+    f.panoptic = r.panoptic;
+    absl::StatusOr<FrameResult> res = (*sys)->Process(f);
+    CHECK(res.ok()) << res.status();
+    for (const ObjectResult& o : res->objects) {
+      if (o.state == ObjectState::kLost) continue;
+      io::ObjectTrackRow row;
+      row.frame = k;
+      row.track_id = o.id;
+      row.class_id = o.class_id;
+      row.world_from_object = o.world_from_object;
+      row.twist_in_world = o.twist_in_world;
+      row.instance_id = o.instance_id;
+      run.est.push_back(row);
+    }
+    for (const sim::FrameLabel& l : sim::ComputeFrameLabels(sc, renderer, k, r.panoptic)) {
+      io::ObjectGtRow g;
+      g.frame = k;
+      g.track_id = l.track_id;
+      g.class_id = l.class_id;
+      g.world_from_object = cam0_from_world * l.world_from_object;
+      run.gt.push_back(g);
+    }
+    io::CountMaskPixels(k, r.panoptic, &run.pixels);
+    run.timestamps.push_back(f.timestamp_ns);
+    run.gt_cameras.push_back(cam0_from_world * world_from_camera);
+    run.results.push_back(*std::move(res));
+  }
+  auto eval =
+      io::EvaluateObjects(run.gt, run.est, run.timestamps, io::ObjectEvalOptions{}, &run.pixels);
+  CHECK(eval.ok()) << eval.status();
+  run.eval = *std::move(eval);
+  std::vector<SE3d> est_cameras;
+  for (const auto& r : run.results) est_cameras.push_back(r.world_from_camera);
+  const auto cam = io::EvaluateCamera(run.gt_cameras, est_cameras);
+  std::printf("[%s, %d frames, %s] camera ATE %.3f m\n%s",
+              name.c_str(),
+              frames,
+              constrained ? "constrained" : "free",
+              cam.ok() ? cam->ate_rmse : -1.0,
+              io::FormatObjectTable(run.eval).c_str());
+  return run;
+}
+
+const io::ObjectMetrics* LongestTracked(const io::ObjectEvaluation& e, bool moving, int class_id) {
+  const io::ObjectMetrics* best = nullptr;
+  for (const auto& m : e.objects) {
+    if (m.moving != moving || m.class_id != class_id || m.est_track_id < 0) continue;
+    if (best == nullptr || m.tracked_frames > best->tracked_frames) best = &m;
+  }
+  return best;
+}
+
+TEST(ObjectsEndToEnd, DrivingCarsTrackedWithPlanarConstraint) {
+  const E2eRun run = RunScenario("driving", 30);
+  // Objects and cluster events come out of the engine.
+  int created = 0, planes = 0;
+  Eigen::Vector4d road = Eigen::Vector4d::Zero();
+  for (const auto& r : run.results) {
+    for (const auto& e : r.cluster_events) {
+      created += e.type == ClusterEventType::kCreated;
+      if (e.type == ClusterEventType::kPlaneUpdated) {
+        ++planes;
+        if (e.class_id == sim::kClassRoad && e.plane) road = *e.plane;
+        ASSERT_TRUE(e.plane.has_value());
+        EXPECT_NEAR(e.plane->norm(), 1.0, 1e-6);
+      }
+    }
+  }
+  EXPECT_GT(created, 0);
+  EXPECT_GT(planes, 0);
+
+  // The leading car (moving, seen all along).
+  const io::ObjectMetrics* lead = LongestTracked(run.eval, true, sim::kClassCar);
+  ASSERT_NE(lead, nullptr);
+  EXPECT_GT(lead->tracked_frames, 20);
+  EXPECT_LT(lead->ate, 0.5);
+  EXPECT_LT(lead->speed_error_kmh, 5.0);
+  // Parked cars: tracked and nearly still.
+  int parked = 0;
+  double parked_speed = 0.0;
+  for (const auto& m : run.eval.objects) {
+    if (m.moving || m.class_id != sim::kClassCar || m.est_track_id < 0 || m.tracked_frames < 5 ||
+        std::isnan(m.speed_error_kmh)) {
+      continue;
+    }
+    parked_speed += m.speed_error_kmh;
+    ++parked;
+  }
+  EXPECT_GE(parked, 2);
+  EXPECT_LT(parked_speed / std::max(parked, 1), 6.0);
+
+  // Planar constraint: every planar track keeps its height above the road
+  // (the component along its joint normal) and has no out-of-plane twist.
+  std::map<int64_t, std::vector<const ObjectResult*>> tracks;
+  for (const auto& r : run.results) {
+    for (const auto& o : r.objects) {
+      if (o.state != ObjectState::kLost && o.joint == "planar") tracks[o.id].push_back(&o);
+    }
+  }
+  ASSERT_FALSE(tracks.empty());
+  for (const auto& [id, samples] : tracks) {
+    if (samples.size() < 5) continue;
+    for (const ObjectResult* o : samples) {
+      EXPECT_NEAR(o->twist_in_joint[2], 0.0, 1e-6) << "track " << id;
+      EXPECT_NEAR(o->twist_in_joint[3], 0.0, 1e-6) << "track " << id;
+      EXPECT_NEAR(o->twist_in_joint[4], 0.0, 1e-6) << "track " << id;
+    }
+  }
+  // The lead car's GT height above the road is constant: so must be its
+  // estimated one (measured to the last fitted road plane).
+  ASSERT_GT(road.head<3>().norm(), 0.5);
+  std::vector<double> heights;
+  for (const auto& row : run.est) {
+    if (row.track_id == lead->est_track_id) {
+      heights.push_back(road.head<3>().dot(row.world_from_object.translation()) + road[3]);
+    }
+  }
+  ASSERT_GT(heights.size(), 10u);
+  const auto [lo, hi] = std::minmax_element(heights.begin(), heights.end());
+  EXPECT_LT(*hi - *lo, 0.15);
+}
+
+TEST(ObjectsEndToEnd, FollowBrakingAndDeterminism) {
+  const E2eRun a = RunScenario("follow_braking", 20);
+  const io::ObjectMetrics* lead = LongestTracked(a.eval, true, sim::kClassCar);
+  ASSERT_NE(lead, nullptr);
+  EXPECT_GT(lead->tracked_frames, 14);
+  EXPECT_LT(lead->ate, 0.5);
+  EXPECT_LT(lead->speed_error_kmh, 5.0);
+  // Same input -> same output.
+  const E2eRun b = RunScenario("follow_braking", 20);
+  ASSERT_EQ(a.est.size(), b.est.size());
+  for (size_t i = 0; i < a.est.size(); ++i) {
+    EXPECT_EQ(a.est[i].track_id, b.est[i].track_id);
+    EXPECT_EQ(a.est[i].world_from_object.translation(), b.est[i].world_from_object.translation());
+  }
+}
+
+// The revolute door: the hinge is estimated (vertical axis in the wall at
+// the door's edge nearest the camera), so the bounds are loose.
+TEST(ObjectsEndToEnd, RevoluteDoor) {
+  const E2eRun run = RunScenario("door", 30);
+  const io::ObjectMetrics* door = nullptr;
+  for (const auto& m : run.eval.objects) {
+    if (m.class_id == sim::kClassDoor && m.est_track_id >= 0) door = &m;
+  }
+  ASSERT_NE(door, nullptr);
+  EXPECT_GT(door->tracked_frames, 10);
+  EXPECT_LT(door->ate, 1.0);
+}
+
+}  // namespace
+}  // namespace twist
