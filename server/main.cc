@@ -1,5 +1,8 @@
 // twistslam-server: the TwistSLAM gRPC service (DESIGN.md §7, docs/server.md).
+#include <chrono>
 #include <csignal>
+#include <cstdlib>
+#include <future>
 #include <cstdio>
 #include <iostream>
 
@@ -48,7 +51,17 @@ int main(int argc, char** argv) {
   int received = 0;
   sigwait(&signals, &received);
   LOG(INFO) << "received " << (received == SIGTERM ? "SIGTERM" : "SIGINT");
-  (*server)->Shutdown();
-  (*server)->Wait();
+  // Shutdown has its own deadlines; an engine stuck inside a frame could
+  // still hold a handler, so the process enforces an outer bound.
+  const double bound_s = flags->options.drain_timeout_s + flags->options.shutdown_deadline_s + 5.0;
+  std::future<void> done = std::async(std::launch::async, [&server] {
+    (*server)->Shutdown();
+    (*server)->Wait();
+  });
+  if (done.wait_for(std::chrono::duration<double>(bound_s)) != std::future_status::ready) {
+    LOG(ERROR) << "shutdown did not finish within " << bound_s << " s (an engine call is stuck); exiting";
+    std::cout.flush();
+    std::_Exit(1);
+  }
   return 0;
 }
