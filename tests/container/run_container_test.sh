@@ -155,7 +155,7 @@ SIZE_MB=$(( $(inspect '{{.Size}}') / 1000000 ))
 log "image size ${SIZE_MB} MB"
 check "no compiler in the runtime image" bash -c \
   "c=\$(buildah from $IMAGE) && trap 'buildah rm \$c >/dev/null' EXIT && \
-   ! buildah run --isolation chroot \$c -- sh -c 'command -v c++ || command -v cmake' >/dev/null"
+   ! buildah run --isolation chroot \$c -- sh -c 'command -v c++ || command -v cmake' >/dev/null 2>&1"
 
 # --- 4. Start the server from the image on a free loopback port. ------------
 C=$(buildah from "$IMAGE")
@@ -211,7 +211,8 @@ else
 fi
 SEQ=${SEQ:-0000}
 check "twistslam run --server $ADDR" \
-  client run --dataset "$DATA" --format kitti-tracking --seq "$SEQ" --out "$OUT" --server "$ADDR"
+  client run --dataset "$DATA" --format kitti-tracking --seq "$SEQ" --out "$OUT" --server "$ADDR" \
+    --keep-session
 check "twistslam eval" \
   client eval --dataset "$DATA" --format kitti-tracking --seq "$SEQ" --est "$OUT" --json "$OUT/metrics.json"
 E2E_S=$(( $(now) - T_E2E ))
@@ -287,8 +288,24 @@ if [ -n "$SERVER_INNER" ]; then
   rc=0; wait "$SERVER_PID" || rc=$?
   SERVER_PID=""
   check "server stops on SIGTERM within 60 s (${STOP_S} s, exit $rc)" test "$stopped" -eq 1 -a "$rc" -eq 0
-  check "state directory holds persisted sessions" \
+  # The run kept its session open (--keep-session): the shutdown persisted it.
+  check "shutdown persisted the open session to the state volume" \
     test -n "$(buildah run --isolation chroot "$C" -- ls -A /var/lib/twistslam)"
+  # Restart on the same state: the server comes back SERVING with it.
+  buildah run --isolation chroot "$C" -- /usr/local/bin/twistslam-server \
+    --listen 127.0.0.1:0 --state-dir /var/lib/twistslam --config /etc/twistslam/server.yaml \
+    >"$WORK/server2.out" 2>"$WORK/server2.err" </dev/null &
+  SERVER_PID=$!
+  ADDR2=""
+  for _ in $(seq 1 600); do
+    line=$(head -n 1 "$WORK/server2.out" 2>/dev/null || true)
+    if [[ "$line" == "listening on "* ]]; then ADDR2=${line#listening on }; break; fi
+    kill -0 "$SERVER_PID" 2>/dev/null || break
+    sleep 0.1
+  done
+  check "server restarts on the persisted state and serves" \
+    buildah run --isolation chroot "$C2" -- /usr/local/bin/twistslam-health-probe \
+      --addr "${ADDR2:-127.0.0.1:1}" --wait-ms 30000
 else
   bad "server process found inside the container"
 fi
