@@ -21,7 +21,8 @@ What is checked (each failure is one line naming the file and the problem):
     the project's probe over TLS when the server runs TLS, since the built-in
     `grpc:` probe cannot); every file the server and probes read lies on a
     mounted volume; the state dir is a PersistentVolumeClaim template;
-    terminationGracePeriodSeconds >= the server's shutdown deadline + margin;
+    terminationGracePeriodSeconds >= the server's shutdown bound (drain +
+    deadline + 5 s, server/main.cc);
     CPU and memory requests and limits; a PodDisruptionBudget that selects the
     pods and allows one eviction; non-root security context;
   * the server configs (deploy/config/server.yaml in the image,
@@ -51,9 +52,6 @@ except ImportError:  # pragma: no cover - depends on the machine
     print("SKIP: python3-yaml is not installed (apt-get install python3-yaml)")
     sys.exit(77)
 
-# Seconds the pod needs beyond the server's shutdown deadline to exit after
-# the deadline fired (flush logs, close sockets) before SIGKILL.
-GRACE_MARGIN_S = 5
 PROBE_BINARY = "twistslam-health-probe"
 SERVER_BINARY = "twistslam-server"
 
@@ -90,9 +88,11 @@ def parse_duration_s(value):
 
 # The server's shutdown settings (server/server_flags.cc) and their defaults.
 # On SIGTERM it drains streams for up to drain_timeout_s, persists every
-# session, and ends the remaining calls by shutdown_deadline_s after the
-# signal, so it is gone after max(drain_timeout_s + persisting,
-# shutdown_deadline_s).
+# session, and ends the remaining calls by shutdown_deadline_s; server/main.cc
+# exits at the latest after drain_timeout_s + shutdown_deadline_s + 5 s (its
+# outer bound). The orchestrator's grace period must cover that bound, or
+# SIGKILL can cut the persisting short.
+SHUTDOWN_OUTER_MARGIN_S = 5.0
 SHUTDOWN_DEFAULTS = {"drain_timeout_s": 5.0, "shutdown_deadline_s": 10.0}
 
 
@@ -120,27 +120,28 @@ def parse_config_text(text):
     return values
 
 
+def settings_bound_s(values):
+    """The server's outer shutdown bound for the given config values."""
+    settings = {k: parse_duration_s(values.get(k, d)) for k, d in SHUTDOWN_DEFAULTS.items()}
+    return settings, settings["drain_timeout_s"] + settings["shutdown_deadline_s"] + \
+        SHUTDOWN_OUTER_MARGIN_S
+
+
 def shutdown_deadline_s(config_path, problems):
-    """Seconds the server may take to stop after SIGTERM (before persisting
-    time), from the config and the server's defaults."""
+    """Seconds the server may take to exit after SIGTERM, from the config and
+    the server's defaults (drain + deadline + its 5 s outer margin)."""
     where = os.path.relpath(config_path)
     try:
         with open(config_path, encoding="utf-8") as f:
             values = parse_config_text(f.read())
+        settings, bound = settings_bound_s(values)
     except (OSError, ValueError) as e:
         problems.add(where, f"cannot read server config: {e}")
         return None
-    settings = {}
-    for key, default in SHUTDOWN_DEFAULTS.items():
-        try:
-            settings[key] = parse_duration_s(values.get(key, default))
-        except ValueError as e:
-            problems.add(where, f"{key}: {e}")
-            return None
     problems.check(settings["shutdown_deadline_s"] > 0, where, "shutdown_deadline_s must be > 0")
     problems.check(settings["drain_timeout_s"] <= settings["shutdown_deadline_s"], where,
                    "drain_timeout_s above shutdown_deadline_s leaves no time to persist")
-    return max(settings.values())
+    return bound
 
 
 # ---------------------------------------------------------------------------
@@ -300,9 +301,9 @@ def check_compose(root, docker, deadline, problems):
                    "server: healthcheck must ask the listen port")
     grace = server.get("stop_grace_period")
     if problems.check(grace, where, "server: no stop_grace_period") and deadline:
-        problems.check(parse_duration_s(grace) >= deadline + GRACE_MARGIN_S, where,
-                       f"server: stop_grace_period {grace} < shutdown deadline "
-                       f"{deadline:g}s + {GRACE_MARGIN_S}s")
+        problems.check(parse_duration_s(grace) >= deadline, where,
+                       f"server: stop_grace_period {grace} < the server's shutdown bound "
+                       f"{deadline:g}s")
     clients = [(n, s) for n, s in services.items() if n != "server"]
     if not problems.check(clients, where, "no example client service"):
         return
@@ -562,9 +563,9 @@ def check_k8s_variant(label, docs, configs, docker, problems):
                     deadline = shutdown_deadline_s(path, problems)
     grace = pod.get("terminationGracePeriodSeconds", 30)
     if deadline is not None:
-        problems.check(grace >= deadline + GRACE_MARGIN_S, where,
-                       f"terminationGracePeriodSeconds {grace} < shutdown deadline "
-                       f"{deadline:g}s + {GRACE_MARGIN_S}s")
+        problems.check(grace >= deadline, where,
+                       f"terminationGracePeriodSeconds {grace} < the server's shutdown bound "
+                       f"{deadline:g}s (drain + deadline + 5 s)")
     else:
         problems.add(where, "cannot tell the server's shutdown deadline (no --config)")
 
@@ -714,14 +715,13 @@ def self_test(root):
             print(f"FAIL {name}: not detected")
             failures += 1
     # The config reader: OpenCV-style YAML, JSON, and a header-less file.
-    cases = (("%YAML:1.0\n---\nshutdown_deadline_s: 30\nslam:\n  seed: 3\n", 30.0),
-             ('{"shutdown_deadline_s": 12, "drain_timeout_s": 1}', 12.0),
-             ("%YAML:1.0\ndrain_timeout_s: 20\n", 20.0),
+    cases = (("%YAML:1.0\n---\nshutdown_deadline_s: 30\nslam:\n  seed: 3\n", 40.0),
+             ('{"shutdown_deadline_s": 12, "drain_timeout_s": 1}', 18.0),
+             ("%YAML:1.0\ndrain_timeout_s: 20\n", 35.0),
              ("shutdown_deadline_s: 30\n", None))
     for text, expect in cases:
         try:
-            got = parse_config_text(text)
-            value = max(parse_duration_s(got.get(k, d)) for k, d in SHUTDOWN_DEFAULTS.items())
+            value = settings_bound_s(parse_config_text(text))[1]
         except ValueError:
             value = None
         if value != expect:
