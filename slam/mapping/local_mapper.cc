@@ -441,6 +441,7 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
   std::set<int64_t> fixed;
   std::map<int64_t, Eigen::Vector3d> points;
   std::vector<Obs> obs;
+  const double close_depth = options_.close_depth_baselines * camera_.baseline;
   {
     std::lock_guard<std::mutex> lock(map->mutex());
     map::KeyFrame* kf = map->keyframe(kf_id);
@@ -473,11 +474,19 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
         // Observations behind the camera cannot be evaluated: left out.
         if ((k->camera_from_world * pos).z() <= 1e-3) continue;
         const cv::KeyPoint& kp = k->features->keypoints[idx];
-        obs.push_back({oid,
-                       pid,
-                       idx,
-                       Eigen::Vector3d(kp.pt.x, kp.pt.y, k->features->u_right[idx]),
-                       kp.octave});
+        // The right-image coordinate is used only for close points (depth up
+        // to ThDepth baselines), as for new stereo points. A far point's
+        // disparity is a few pixels, so a sub-pixel error of the block
+        // matcher (ours reads ~0.1 px more than OpenCV SGBM on KITTI,
+        // `SGBM=1 engine_trace`) is a percent-level depth error that a u_right
+        // residual weighted like u and v imposes on the keyframe poses; as a
+        // mono observation the far point still constrains the rotation.
+        // KITTI 06 f0-50 (sync): ATE 0.095 -> 0.051 m, RPE_t 0.0134 -> 0.0125.
+        // Trade-off: on rendered data, whose far disparities are cleaner, the
+        // far u_right helped (driving 60 frames ATE 0.010 -> 0.022 m).
+        const bool close = k->features->depth[idx] > 0.f && k->features->depth[idx] <= close_depth;
+        const double u_right = close ? k->features->u_right[idx] : -1.0;
+        obs.push_back({oid, pid, idx, Eigen::Vector3d(kp.pt.x, kp.pt.y, u_right), kp.octave});
       }
     }
   }
