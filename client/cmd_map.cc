@@ -18,7 +18,10 @@ int MapCommand(int argc, char** argv) {
   parser.AddValue("server", "HOST:PORT", "twistslam-server address")
       .AddValue("session", "ID", "session id")
       .AddValue("out", "FILE", "PLY file to write")
-      .AddValue("resume-token", "TOKEN", "load a stored session first (ResumeSession)", /*required=*/false)
+      .AddValue("resume-token",
+                "TOKEN",
+                "load a stored session first (ResumeSession)",
+                /*required=*/false)
       .AddValue("token-file", "FILE", "bearer token for the server", false)
       .AddValue("tls-ca", "FILE", "PEM roots: connect with TLS", false);
   std::optional<Args> args = parser.Parse(argc, argv);
@@ -35,16 +38,19 @@ int MapCommand(int argc, char** argv) {
   if (!client.ok()) return Fail(kCommand, std::string(client.status().message()));
   if (args->Has("resume-token")) {
     auto resumed = (*client)->ResumeSession(args->Get("session"), args->Get("resume-token"));
-    if (!resumed.ok()) return Fail(kCommand, absl::StrCat("cannot resume: ", resumed.status().message()));
+    if (!resumed.ok())
+      return Fail(kCommand, absl::StrCat("cannot resume: ", resumed.status().message()));
   }
   client::pb::GetMapRequest request;
   request.set_session_id(args->Get("session"));
   absl::StatusOr<std::vector<client::pb::MapChunk>> chunks = (*client)->GetMap(request);
-  if (!chunks.ok()) return Fail(kCommand, absl::StrCat("cannot fetch the map: ", chunks.status().message()));
+  if (!chunks.ok())
+    return Fail(kCommand, absl::StrCat("cannot fetch the map: ", chunks.status().message()));
   const MapSnapshot map = client::MapFromChunks(*chunks);
-  if (!WriteFileAtomic(args->Get("out"), client::MapToPly(map), &error)) return Fail(kCommand, error);
-  std::cerr << "wrote " << map.points.size() << " points and " << map.keyframes.size() << " keyframes ("
-            << chunks->size() << " chunks) to " << args->Get("out") << "\n";
+  if (!WriteFileAtomic(args->Get("out"), client::MapToPly(map), &error))
+    return Fail(kCommand, error);
+  std::cerr << "wrote " << map.points.size() << " points and " << map.keyframes.size()
+            << " keyframes (" << chunks->size() << " chunks) to " << args->Get("out") << "\n";
   return 0;
 }
 

@@ -11,10 +11,9 @@
 #include <iostream>
 #include <map>
 #include <mutex>
+#include <opencv2/core/persistence.hpp>
 #include <sstream>
 #include <vector>
-
-#include <opencv2/core/persistence.hpp>
 
 #include "absl/strings/str_cat.h"
 #include "client/cli_util.h"
@@ -49,8 +48,12 @@ class Progress {
     std::string bar(static_cast<size_t>(filled), '=');
     if (filled < kWidth) bar += '>';
     bar.resize(kWidth, ' ');
-    std::fprintf(stderr, "\r[%s] %lld/%lld frames  %.1f frames/s ", bar.c_str(), static_cast<long long>(done),
-                 static_cast<long long>(total_), fps);
+    std::fprintf(stderr,
+                 "\r[%s] %lld/%lld frames  %.1f frames/s ",
+                 bar.c_str(),
+                 static_cast<long long>(done),
+                 static_cast<long long>(total_),
+                 fps);
     std::fflush(stderr);
   }
   void Finish(int64_t done) {
@@ -67,8 +70,19 @@ class Progress {
 
 void WritePose(io::JsonWriter* w, const geometry::SE3d& pose) {
   const Eigen::Quaterniond& q = pose.unit_quaternion();
-  w->BeginObject().Key("q_xyzw").BeginArray().Number(q.x()).Number(q.y()).Number(q.z()).Number(q.w()).EndArray();
-  w->Key("t").BeginArray().Number(pose.translation().x()).Number(pose.translation().y()).Number(pose.translation().z());
+  w->BeginObject()
+      .Key("q_xyzw")
+      .BeginArray()
+      .Number(q.x())
+      .Number(q.y())
+      .Number(q.z())
+      .Number(q.w())
+      .EndArray();
+  w->Key("t")
+      .BeginArray()
+      .Number(pose.translation().x())
+      .Number(pose.translation().y())
+      .Number(pose.translation().z());
   w->EndArray().EndObject();
 }
 
@@ -90,20 +104,40 @@ std::string UpdateJson(const FrameResult& r) {
   w.Key("num_map_points").Int(r.num_map_points).Key("num_keyframes").Int(r.num_keyframes);
   w.Key("objects").BeginArray();
   for (const ObjectResult& o : r.objects) {
-    w.BeginObject().Key("id").Int(o.id).Key("class_id").Int(o.class_id).Key("instance_id").Int(o.instance_id);
+    w.BeginObject()
+        .Key("id")
+        .Int(o.id)
+        .Key("class_id")
+        .Int(o.class_id)
+        .Key("instance_id")
+        .Int(o.instance_id);
     w.Key("state").String(ObjectStateName(o.state)).Key("world_from_object");
     WritePose(&w, o.world_from_object);
     w.Key("twist_in_world");
     WriteTwist(&w, o.twist_in_world);
     w.Key("twist_in_joint");
     WriteTwist(&w, o.twist_in_joint);
-    w.Key("speed_mps").Number(o.speed_mps).Key("joint").String(o.joint).Key("num_points").Int(o.num_points);
+    w.Key("speed_mps")
+        .Number(o.speed_mps)
+        .Key("joint")
+        .String(o.joint)
+        .Key("num_points")
+        .Int(o.num_points);
     w.EndObject();
   }
   w.EndArray().Key("cluster_events").BeginArray();
   for (const ClusterEvent& e : r.cluster_events) {
-    w.BeginObject().Key("type").String(ClusterEventTypeName(e.type)).Key("cluster_id").Int(e.cluster_id);
-    w.Key("class_id").Int(e.class_id).Key("instance_id").Int(e.instance_id).Key("is_dynamic").Bool(e.is_dynamic);
+    w.BeginObject()
+        .Key("type")
+        .String(ClusterEventTypeName(e.type))
+        .Key("cluster_id")
+        .Int(e.cluster_id);
+    w.Key("class_id")
+        .Int(e.class_id)
+        .Key("instance_id")
+        .Int(e.instance_id)
+        .Key("is_dynamic")
+        .Bool(e.is_dynamic);
     if (e.plane) {
       w.Key("plane").BeginArray();
       for (int i = 0; i < 4; ++i) w.Number((*e.plane)[i]);
@@ -162,18 +196,30 @@ bool ReadRunConfig(const std::string& path, RunConfig* config, std::string* erro
           return false;
         }
         const double v = o.real();
-        if (k == "num_features") s.num_features = static_cast<int>(v);
-        else if (k == "num_levels") s.num_levels = static_cast<int>(v);
-        else if (k == "scale_factor") s.scale_factor = v;
-        else if (k == "fast_threshold") s.fast_threshold = static_cast<int>(v);
-        else if (k == "max_depth_baselines") s.max_depth_baselines = v;
-        else if (k == "local_ba_iterations") s.local_ba_iterations = static_cast<int>(v);
-        else if (k == "num_threads") s.num_threads = static_cast<int>(v);
-        else if (k == "use_masks") s.use_masks = v != 0;
-        else if (k == "track_objects") s.track_objects = v != 0;
-        else if (k == "constrain_objects") s.constrain_objects = v != 0;
-        else if (k == "temporal_window_s") s.temporal_window_s = v;
-        else if (k == "seed") s.seed = static_cast<uint64_t>(v);
+        if (k == "num_features")
+          s.num_features = static_cast<int>(v);
+        else if (k == "num_levels")
+          s.num_levels = static_cast<int>(v);
+        else if (k == "scale_factor")
+          s.scale_factor = v;
+        else if (k == "fast_threshold")
+          s.fast_threshold = static_cast<int>(v);
+        else if (k == "max_depth_baselines")
+          s.max_depth_baselines = v;
+        else if (k == "local_ba_iterations")
+          s.local_ba_iterations = static_cast<int>(v);
+        else if (k == "num_threads")
+          s.num_threads = static_cast<int>(v);
+        else if (k == "use_masks")
+          s.use_masks = v != 0;
+        else if (k == "track_objects")
+          s.track_objects = v != 0;
+        else if (k == "constrain_objects")
+          s.constrain_objects = v != 0;
+        else if (k == "temporal_window_s")
+          s.temporal_window_s = v;
+        else if (k == "seed")
+          s.seed = static_cast<uint64_t>(v);
         else {
           *error = "config: unknown key slam." + k;
           return false;
@@ -194,9 +240,12 @@ bool ReadRunConfig(const std::string& path, RunConfig* config, std::string* erro
       config->class_table_text = n.string();
     } else if (key == "encoding") {
       const std::string v = n.string();
-      if (v == "raw") config->encoding = client::pb::IMAGE_ENCODING_RAW;
-      else if (v == "png") config->encoding = client::pb::IMAGE_ENCODING_PNG;
-      else if (v == "jpeg") config->encoding = client::pb::IMAGE_ENCODING_JPEG;
+      if (v == "raw")
+        config->encoding = client::pb::IMAGE_ENCODING_RAW;
+      else if (v == "png")
+        config->encoding = client::pb::IMAGE_ENCODING_PNG;
+      else if (v == "jpeg")
+        config->encoding = client::pb::IMAGE_ENCODING_JPEG;
       else {
         *error = "config: encoding must be raw, png or jpeg";
         return false;
@@ -244,23 +293,29 @@ int RunCommand(int argc, char** argv) {
       .AddValue("out", "OUTDIR", "output directory")
       .AddValue("server", "HOST:PORT", "stream to a twistslam-server", /*required=*/false)
       .AddFlag("embedded", "run the engine in this process instead of a server")
-      .AddValue("config", "FILE", "YAML/JSON: slam options, classes_file, encoding, queue_capacity, overflow",
+      .AddValue("config",
+                "FILE",
+                "YAML/JSON: slam options, classes_file, encoding, queue_capacity, overflow",
                 /*required=*/false)
-      .AddValue("token-file", "FILE", "bearer token for the server (first token of the file)", false)
+      .AddValue(
+          "token-file", "FILE", "bearer token for the server (first token of the file)", false)
       .AddValue("tls-ca", "FILE", "PEM roots: connect with TLS", false)
       .AddValue("max-frames", "N", "process at most N frames", false, "all")
       .AddValue("name", "NAME", "session name shown by the server", false, "the sequence")
-      .AddFlag("keep-session", "leave the server session open (for `twistslam map`) and print its id");
+      .AddFlag("keep-session",
+               "leave the server session open (for `twistslam map`) and print its id");
   std::optional<Args> args = parser.Parse(argc, argv);
   if (!args) return parser.exit_code();
   const bool embedded = args->Flag("embedded");
-  if (embedded == args->Has("server")) return Fail(kCommand, "give exactly one of --server HOST:PORT and --embedded", 2);
+  if (embedded == args->Has("server"))
+    return Fail(kCommand, "give exactly one of --server HOST:PORT and --embedded", 2);
   std::optional<int64_t> max_frames = args->GetInt("max-frames", -1);
   if (!max_frames) return Fail(kCommand, "--max-frames must be an integer", 2);
 
   RunConfig config;
   std::string error;
-  if (args->Has("config") && !ReadRunConfig(args->Get("config"), &config, &error)) return Fail(kCommand, error, 2);
+  if (args->Has("config") && !ReadRunConfig(args->Get("config"), &config, &error))
+    return Fail(kCommand, error, 2);
 
   absl::StatusOr<std::unique_ptr<io::SequenceReader>> seq =
       io::OpenSequence(args->Get("dataset"), args->Get("format"), args->Get("seq"));
@@ -319,18 +374,22 @@ int RunCommand(int argc, char** argv) {
       options.token = ReadTokenFile(args->Get("token-file"), &error);
       if (options.token.empty()) return Fail(kCommand, error, 2);
     }
-    absl::StatusOr<std::unique_ptr<client::SlamClient>> client = client::SlamClient::Connect(options);
+    absl::StatusOr<std::unique_ptr<client::SlamClient>> client =
+        client::SlamClient::Connect(options);
     if (!client.ok()) return Fail(kCommand, std::string(client.status().message()), 1);
     client::pb::CreateSessionRequest request;
     request.set_name(args->Get("name", reader.sequence()));
     *request.mutable_config() = client::SessionConfigToProto(session);
     request.mutable_policy()->set_queue_capacity(config.queue_capacity);
-    request.mutable_policy()->set_overflow(config.drop_oldest ? client::pb::OVERFLOW_POLICY_DROP_OLDEST
-                                                              : client::pb::OVERFLOW_POLICY_BLOCK);
+    request.mutable_policy()->set_overflow(config.drop_oldest
+                                               ? client::pb::OVERFLOW_POLICY_DROP_OLDEST
+                                               : client::pb::OVERFLOW_POLICY_BLOCK);
     absl::StatusOr<client::pb::CreateSessionResponse> created = (*client)->CreateSession(request);
     if (!created.ok()) {
-      return Fail(kCommand, absl::StrCat("cannot create a session on ", options.address, ": ",
-                                         created.status().message()));
+      return Fail(
+          kCommand,
+          absl::StrCat(
+              "cannot create a session on ", options.address, ": ", created.status().message()));
     }
     std::mutex mu;
     std::map<int64_t, client::pb::FrameUpdate> updates;
@@ -342,7 +401,8 @@ int RunCommand(int argc, char** argv) {
             updates[r.update().index()] = r.update();
             ++answered;
           } else if (r.has_error()) {
-            frame_errors.push_back(absl::StrCat("frame ", r.error().index(), ": ", r.error().message()));
+            frame_errors.push_back(
+                absl::StrCat("frame ", r.error().index(), ": ", r.error().message()));
             ++answered;
           } else if (r.has_dropped()) {
             dropped += r.dropped().indices_size();
@@ -391,10 +451,12 @@ int RunCommand(int argc, char** argv) {
     client::pb::GetMapRequest map_request;
     map_request.set_session_id(created->session_id());
     absl::StatusOr<std::vector<client::pb::MapChunk>> chunks = (*client)->GetMap(map_request);
-    if (!chunks.ok()) return Fail(kCommand, absl::StrCat("cannot fetch the map: ", chunks.status().message()));
+    if (!chunks.ok())
+      return Fail(kCommand, absl::StrCat("cannot fetch the map: ", chunks.status().message()));
     map = client::MapFromChunks(*chunks);
     if (args->Flag("keep-session")) {
-      std::cout << "session " << created->session_id() << " resume_token " << created->resume_token() << "\n";
+      std::cout << "session " << created->session_id() << " resume_token "
+                << created->resume_token() << "\n";
     } else {
       (*client)->CloseSession(created->session_id(), /*persist=*/false).IgnoreError();
     }
@@ -407,7 +469,8 @@ int RunCommand(int argc, char** argv) {
   info.numbers.push_back({"frame_errors", static_cast<double>(frame_errors.size())});
   info.numbers.push_back({"frames_dropped", static_cast<double>(dropped)});
   info.numbers.push_back({"reconnects", static_cast<double>(reconnects)});
-  info.numbers.push_back({"frames_per_second", info.wall_time_s > 0 ? results.size() / info.wall_time_s : 0.0});
+  info.numbers.push_back(
+      {"frames_per_second", info.wall_time_s > 0 ? results.size() / info.wall_time_s : 0.0});
 
   // updates.jsonl and map.ply first; RunOutputWriter writes summary.json last,
   // so a directory with summary.json holds a complete run.
@@ -423,11 +486,18 @@ int RunCommand(int argc, char** argv) {
       !WriteFileAtomic((out_dir / "map.ply").string(), client::MapToPly(map), &out_error)) {
     return Fail(kCommand, out_error);
   }
-  if (absl::Status s = writer.Write(out_dir.string(), info); !s.ok()) return Fail(kCommand, std::string(s.message()));
-  for (size_t i = 0; i < frame_errors.size() && i < 5; ++i) std::cerr << "twistslam run: " << frame_errors[i] << "\n";
-  std::fprintf(stderr, "%zu/%lld frames processed (%zu errors, %lld dropped) in %.1f s; outputs in %s\n",
-               results.size(), static_cast<long long>(total), frame_errors.size(), static_cast<long long>(dropped),
-               info.wall_time_s, out_dir.c_str());
+  if (absl::Status s = writer.Write(out_dir.string(), info); !s.ok())
+    return Fail(kCommand, std::string(s.message()));
+  for (size_t i = 0; i < frame_errors.size() && i < 5; ++i)
+    std::cerr << "twistslam run: " << frame_errors[i] << "\n";
+  std::fprintf(stderr,
+               "%zu/%lld frames processed (%zu errors, %lld dropped) in %.1f s; outputs in %s\n",
+               results.size(),
+               static_cast<long long>(total),
+               frame_errors.size(),
+               static_cast<long long>(dropped),
+               info.wall_time_s,
+               out_dir.c_str());
   return frame_errors.empty() ? 0 : 3;
 }
 

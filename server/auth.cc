@@ -40,17 +40,20 @@ absl::StatusOr<TokenAuthenticator> TokenAuthenticator::FromText(const std::strin
     ++line_no;
     const absl::string_view line = absl::StripAsciiWhitespace(raw);
     if (line.empty() || line[0] == '#') continue;
-    std::vector<std::string> parts = absl::StrSplit(line, absl::ByAnyChar(" \t"), absl::SkipEmpty());
+    std::vector<std::string> parts =
+        absl::StrSplit(line, absl::ByAnyChar(" \t"), absl::SkipEmpty());
     if (parts.size() > 2) {
       return absl::InvalidArgumentError(
           absl::StrCat("token file line ", line_no, ": expected `<token> [<principal>]`"));
     }
     if (parts[0].size() < 8) {
-      return absl::InvalidArgumentError(absl::StrCat("token file line ", line_no, ": token shorter than 8 characters"));
+      return absl::InvalidArgumentError(
+          absl::StrCat("token file line ", line_no, ": token shorter than 8 characters"));
     }
     const std::string principal = parts.size() == 2 ? parts[1] : StableTokenName(parts[0]);
     if (!auth.principals_.emplace(parts[0], principal).second) {
-      return absl::InvalidArgumentError(absl::StrCat("token file line ", line_no, ": duplicate token"));
+      return absl::InvalidArgumentError(
+          absl::StrCat("token file line ", line_no, ": duplicate token"));
     }
   }
   if (auth.principals_.empty()) return absl::InvalidArgumentError("token file has no tokens");
@@ -63,11 +66,13 @@ absl::StatusOr<TokenAuthenticator> TokenAuthenticator::FromFile(const std::strin
   std::stringstream ss;
   ss << in.rdbuf();
   absl::StatusOr<TokenAuthenticator> auth = FromText(ss.str());
-  if (!auth.ok()) return absl::InvalidArgumentError(absl::StrCat(path, ": ", auth.status().message()));
+  if (!auth.ok())
+    return absl::InvalidArgumentError(absl::StrCat(path, ": ", auth.status().message()));
   return auth;
 }
 
-absl::StatusOr<std::string> TokenAuthenticator::AuthenticateHeader(const std::string& authorization) const {
+absl::StatusOr<std::string> TokenAuthenticator::AuthenticateHeader(
+    const std::string& authorization) const {
   if (!enabled()) return std::string();
   if (authorization.empty()) {
     return absl::UnauthenticatedError("missing `authorization: Bearer <token>` metadata");
@@ -76,14 +81,16 @@ absl::StatusOr<std::string> TokenAuthenticator::AuthenticateHeader(const std::st
   if (!absl::StartsWithIgnoreCase(authorization, kPrefix)) {
     return absl::UnauthenticatedError("authorization metadata must be `Bearer <token>`");
   }
-  const std::string token(absl::StripAsciiWhitespace(absl::string_view(authorization).substr(kPrefix.size())));
+  const std::string token(
+      absl::StripAsciiWhitespace(absl::string_view(authorization).substr(kPrefix.size())));
   for (const auto& [known, principal] : principals_) {
     if (ConstantTimeEquals(known, token)) return principal;
   }
   return absl::UnauthenticatedError("unknown bearer token");
 }
 
-absl::StatusOr<std::string> TokenAuthenticator::Authenticate(const grpc::ServerContext& context) const {
+absl::StatusOr<std::string> TokenAuthenticator::Authenticate(
+    const grpc::ServerContext& context) const {
   if (!enabled()) return std::string();
   const auto& md = context.client_metadata();
   auto it = md.find("authorization");

@@ -5,10 +5,10 @@
 // creates; other principals cannot see them.
 #pragma once
 
+#include <grpcpp/server_context.h>
+
 #include <map>
 #include <string>
-
-#include <grpcpp/server_context.h>
 
 #include "absl/status/statusor.h"
 

@@ -4,10 +4,9 @@
 #include <cmath>
 #include <cstring>
 #include <map>
-#include <utility>
-
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <utility>
 
 #include "absl/strings/str_cat.h"
 
@@ -55,7 +54,11 @@ absl::Status CheckPngHeader(const std::string& data,
   if (expected_width > 0 && expected_height > 0 &&
       (width != static_cast<uint32_t>(expected_width) ||
        height != static_cast<uint32_t>(expected_height))) {
-    return absl::InvalidArgumentError(absl::StrCat(what, " is ", width, "x", height,
+    return absl::InvalidArgumentError(absl::StrCat(what,
+                                                   " is ",
+                                                   width,
+                                                   "x",
+                                                   height,
                                                    ", session expects ",
                                                    SizeText(expected_width, expected_height)));
   }
@@ -101,27 +104,41 @@ int PixelCvType(pb::PixelFormat f) {
 absl::StatusOr<cv::Mat> DecodeRaw(const pb::Image& image, const std::string& what) {
   const int bpp = PixelBytes(image.pixel_format());
   if (bpp == 0) {
-    return absl::InvalidArgumentError(
-        absl::StrCat(what, ": RAW image needs a pixel_format (GRAY8, RGB8, BGR8, GRAY16, INT32 or FLOAT32X2)"));
+    return absl::InvalidArgumentError(absl::StrCat(
+        what, ": RAW image needs a pixel_format (GRAY8, RGB8, BGR8, GRAY16, INT32 or FLOAT32X2)"));
   }
   if (image.width() <= 0 || image.height() <= 0) {
-    return absl::InvalidArgumentError(absl::StrCat(what, ": RAW image has size ", image.width(), "x",
-                                                   image.height(), "; width and height must be positive"));
+    return absl::InvalidArgumentError(absl::StrCat(what,
+                                                   ": RAW image has size ",
+                                                   image.width(),
+                                                   "x",
+                                                   image.height(),
+                                                   "; width and height must be positive"));
   }
   const int64_t row_bytes = int64_t{image.width()} * bpp;
   const int64_t stride = image.stride() == 0 ? row_bytes : image.stride();
   if (stride < row_bytes) {
-    return absl::InvalidArgumentError(absl::StrCat(what, ": stride ", stride, " is smaller than a row (",
-                                                   row_bytes, " bytes)"));
+    return absl::InvalidArgumentError(
+        absl::StrCat(what, ": stride ", stride, " is smaller than a row (", row_bytes, " bytes)"));
   }
   const int64_t needed = stride * (image.height() - 1) + row_bytes;
   if (static_cast<int64_t>(image.data().size()) < needed) {
-    return absl::InvalidArgumentError(absl::StrCat(what, ": RAW ", image.width(), "x", image.height(),
-                                                   " needs ", needed, " bytes, got ", image.data().size()));
+    return absl::InvalidArgumentError(absl::StrCat(what,
+                                                   ": RAW ",
+                                                   image.width(),
+                                                   "x",
+                                                   image.height(),
+                                                   " needs ",
+                                                   needed,
+                                                   " bytes, got ",
+                                                   image.data().size()));
   }
   // Wrap the wire bytes without copying, then copy into an owned matrix.
-  const cv::Mat view(image.height(), image.width(), PixelCvType(image.pixel_format()),
-                     const_cast<char*>(image.data().data()), static_cast<size_t>(stride));
+  const cv::Mat view(image.height(),
+                     image.width(),
+                     PixelCvType(image.pixel_format()),
+                     const_cast<char*>(image.data().data()),
+                     static_cast<size_t>(stride));
   cv::Mat owned;
   if (image.pixel_format() == pb::PIXEL_FORMAT_RGB8) {
     cv::cvtColor(view, owned, cv::COLOR_RGB2BGR);
@@ -155,7 +172,8 @@ absl::StatusOr<geometry::SE3d> FromProto(const pb::Pose& pose) {
   }
   const Eigen::Quaterniond q(r.w(), r.x(), r.y(), r.z());
   if (q.norm() < 1e-6) {
-    return absl::InvalidArgumentError("pose rotation quaternion is zero (expected unit x, y, z, w)");
+    return absl::InvalidArgumentError(
+        "pose rotation quaternion is zero (expected unit x, y, z, w)");
   }
   return geometry::SE3d(q.normalized(), Eigen::Vector3d(t.x(), t.y(), t.z()));
 }
@@ -231,21 +249,22 @@ absl::StatusOr<joints::ClassTable> ClassTableFromProto(const pb::ClassTable& tab
   for (const pb::JointEdge& edge : table.joints()) {
     auto it = index.find(edge.child_class_id());
     if (it == index.end()) {
-      return absl::InvalidArgumentError(
-          absl::StrCat("joint graph: child class ", edge.child_class_id(), " is not in the class table"));
+      return absl::InvalidArgumentError(absl::StrCat(
+          "joint graph: child class ", edge.child_class_id(), " is not in the class table"));
     }
     joints::ClassInfo& child = classes[it->second];
     if (child.parent_id != -1) {
-      return absl::InvalidArgumentError(
-          absl::StrCat("joint graph: class ", child.id, " (", child.name, ") has more than one joint"));
+      return absl::InvalidArgumentError(absl::StrCat(
+          "joint graph: class ", child.id, " (", child.name, ") has more than one joint"));
     }
     absl::StatusOr<joints::JointType> type = JointTypeFromProto(edge.joint_type());
     if (!type.ok()) {
-      return absl::InvalidArgumentError(absl::StrCat("joint graph: class ", child.id, " (", child.name,
-                                                     "): ", type.status().message()));
+      return absl::InvalidArgumentError(absl::StrCat(
+          "joint graph: class ", child.id, " (", child.name, "): ", type.status().message()));
     }
     if (!Finite(edge.pitch())) {
-      return absl::InvalidArgumentError(absl::StrCat("joint graph: class ", child.id, ": pitch is not finite"));
+      return absl::InvalidArgumentError(
+          absl::StrCat("joint graph: class ", child.id, ": pitch is not finite"));
     }
     child.parent_id = edge.parent_class_id();
     child.joint = *type;
@@ -278,7 +297,8 @@ absl::Status ApplyOptions(const pb::SlamOptions& in, SlamOptions* options) {
   if (in.has_num_features()) options->num_features = in.num_features();
   if (in.has_num_levels()) options->num_levels = in.num_levels();
   if (in.has_scale_factor()) {
-    if (!Finite(in.scale_factor())) return absl::InvalidArgumentError("options.scale_factor is not finite");
+    if (!Finite(in.scale_factor()))
+      return absl::InvalidArgumentError("options.scale_factor is not finite");
     options->scale_factor = in.scale_factor();
   }
   if (in.has_fast_threshold()) options->fast_threshold = in.fast_threshold();
@@ -298,7 +318,8 @@ absl::Status ApplyOptions(const pb::SlamOptions& in, SlamOptions* options) {
       options->mapping_mode = MappingMode::kBackground;
       break;
     default:
-      return absl::InvalidArgumentError(absl::StrCat("options.mapping_mode ", in.mapping_mode(), " is unknown"));
+      return absl::InvalidArgumentError(
+          absl::StrCat("options.mapping_mode ", in.mapping_mode(), " is unknown"));
   }
   if (in.has_local_ba_iterations()) options->local_ba_iterations = in.local_ba_iterations();
   if (in.has_num_threads()) options->num_threads = in.num_threads();
@@ -321,8 +342,9 @@ void ToProto(const SlamOptions& options, pb::SlamOptions* out) {
   out->set_scale_factor(options.scale_factor);
   out->set_fast_threshold(options.fast_threshold);
   out->set_max_depth_baselines(options.max_depth_baselines);
-  out->set_mapping_mode(options.mapping_mode == MappingMode::kBackground ? pb::MAPPING_MODE_BACKGROUND
-                                                                           : pb::MAPPING_MODE_SYNCHRONOUS);
+  out->set_mapping_mode(options.mapping_mode == MappingMode::kBackground
+                            ? pb::MAPPING_MODE_BACKGROUND
+                            : pb::MAPPING_MODE_SYNCHRONOUS);
   out->set_local_ba_iterations(options.local_ba_iterations);
   out->set_num_threads(options.num_threads);
   out->set_use_masks(options.use_masks);
@@ -342,7 +364,8 @@ void ToProto(const geometry::StereoCamera& camera, pb::StereoCalibration* out) {
   out->set_height(camera.height);
 }
 
-absl::StatusOr<geometry::StereoCamera> RectifiedCameraFromProto(const pb::StereoCalibration& calib) {
+absl::StatusOr<geometry::StereoCamera> RectifiedCameraFromProto(
+    const pb::StereoCalibration& calib) {
   geometry::StereoCamera camera;
   camera.fx = calib.fx();
   camera.fy = calib.fy();
@@ -355,21 +378,25 @@ absl::StatusOr<geometry::StereoCamera> RectifiedCameraFromProto(const pb::Stereo
     if (!Finite(v)) return absl::InvalidArgumentError("calibration has a non-finite value");
   }
   if (camera.width <= 0 || camera.height <= 0) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("calibration: image size ", camera.width, "x", camera.height, " must be positive"));
+    return absl::InvalidArgumentError(absl::StrCat(
+        "calibration: image size ", camera.width, "x", camera.height, " must be positive"));
   }
   if (camera.fx <= 0 || camera.fy <= 0) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("calibration: focal lengths fx=", camera.fx, " fy=", camera.fy, " must be positive"));
+    return absl::InvalidArgumentError(absl::StrCat(
+        "calibration: focal lengths fx=", camera.fx, " fy=", camera.fy, " must be positive"));
   }
   if (camera.baseline <= 0) {
     return absl::InvalidArgumentError(
         absl::StrCat("calibration: baseline ", camera.baseline, " m must be positive"));
   }
   if (camera.cx < 0 || camera.cx >= camera.width || camera.cy < 0 || camera.cy >= camera.height) {
-    return absl::InvalidArgumentError(absl::StrCat("calibration: principal point (", camera.cx, ", ",
-                                                   camera.cy, ") lies outside the ",
-                                                   SizeText(camera.width, camera.height), " image"));
+    return absl::InvalidArgumentError(absl::StrCat("calibration: principal point (",
+                                                   camera.cx,
+                                                   ", ",
+                                                   camera.cy,
+                                                   ") lies outside the ",
+                                                   SizeText(camera.width, camera.height),
+                                                   " image"));
   }
   return camera;
 }
@@ -391,12 +418,15 @@ absl::StatusOr<cv::Mat> DecodeImage(const pb::Image& image,
     }
     case pb::IMAGE_ENCODING_PNG:
     case pb::IMAGE_ENCODING_JPEG: {
-      if (image.data().empty()) return absl::InvalidArgumentError(absl::StrCat(what, ": data is empty"));
+      if (image.data().empty())
+        return absl::InvalidArgumentError(absl::StrCat(what, ": data is empty"));
       if (image.encoding() == pb::IMAGE_ENCODING_PNG) {
         absl::Status header = CheckPngHeader(image.data(), what, expected_width, expected_height);
         if (!header.ok()) return header;
       }
-      const cv::Mat buffer(1, static_cast<int>(image.data().size()), CV_8UC1,
+      const cv::Mat buffer(1,
+                           static_cast<int>(image.data().size()),
+                           CV_8UC1,
                            const_cast<char*>(image.data().data()));
       try {
         mat = cv::imdecode(buffer, cv::IMREAD_UNCHANGED);
@@ -404,13 +434,17 @@ absl::StatusOr<cv::Mat> DecodeImage(const pb::Image& image,
         return absl::InvalidArgumentError(absl::StrCat(what, ": cannot decode image: ", e.what()));
       }
       if (mat.empty()) {
-        return absl::InvalidArgumentError(absl::StrCat(
-            what, ": cannot decode ", image.encoding() == pb::IMAGE_ENCODING_PNG ? "PNG" : "JPEG", " data"));
+        return absl::InvalidArgumentError(
+            absl::StrCat(what,
+                         ": cannot decode ",
+                         image.encoding() == pb::IMAGE_ENCODING_PNG ? "PNG" : "JPEG",
+                         " data"));
       }
       if (mat.type() == CV_8UC4) {
         cv::cvtColor(mat, mat, cv::COLOR_BGRA2BGR);
       } else if (mat.type() == CV_16UC3 || mat.type() == CV_16UC4) {
-        return absl::InvalidArgumentError(absl::StrCat(what, ": 16-bit colour images are not supported"));
+        return absl::InvalidArgumentError(
+            absl::StrCat(what, ": 16-bit colour images are not supported"));
       }
       break;
     }
@@ -419,7 +453,9 @@ absl::StatusOr<cv::Mat> DecodeImage(const pb::Image& image,
   }
   if (expected_width > 0 && expected_height > 0 &&
       (mat.cols != expected_width || mat.rows != expected_height)) {
-    return absl::InvalidArgumentError(absl::StrCat(what, " is ", SizeText(mat.cols, mat.rows),
+    return absl::InvalidArgumentError(absl::StrCat(what,
+                                                   " is ",
+                                                   SizeText(mat.cols, mat.rows),
                                                    ", session expects ",
                                                    SizeText(expected_width, expected_height)));
   }
@@ -431,40 +467,47 @@ absl::StatusOr<StereoFrame> FrameFromProto(const pb::Frame& frame, const FrameFo
   out.index = frame.index();
   out.timestamp_ns = frame.timestamp_ns();
   if (frame.timestamp_ns() < 0) {
-    return absl::InvalidArgumentError(absl::StrCat("timestamp_ns ", frame.timestamp_ns(), " is negative"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("timestamp_ns ", frame.timestamp_ns(), " is negative"));
   }
   if (!frame.has_left() || !frame.has_right()) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("frame ", frame.index(), " lacks its ", frame.has_left() ? "right" : "left", " image"));
+    return absl::InvalidArgumentError(absl::StrCat(
+        "frame ", frame.index(), " lacks its ", frame.has_left() ? "right" : "left", " image"));
   }
-  absl::StatusOr<cv::Mat> left = DecodeImage(frame.left(), "left image", format.width, format.height);
+  absl::StatusOr<cv::Mat> left =
+      DecodeImage(frame.left(), "left image", format.width, format.height);
   if (!left.ok()) return left.status();
   if (left->type() != CV_8UC1 && left->type() != CV_8UC3) {
     return absl::InvalidArgumentError(
         absl::StrCat("left image is ", MatTypeText(*left), "; expected 8-bit gray or colour"));
   }
-  absl::StatusOr<cv::Mat> right = DecodeImage(frame.right(), "right image", format.width, format.height);
+  absl::StatusOr<cv::Mat> right =
+      DecodeImage(frame.right(), "right image", format.width, format.height);
   if (!right.ok()) return right.status();
   if (right->type() != left->type()) {
-    return absl::InvalidArgumentError(absl::StrCat("right image is ", MatTypeText(*right),
-                                                   " but left image is ", MatTypeText(*left)));
+    return absl::InvalidArgumentError(absl::StrCat(
+        "right image is ", MatTypeText(*right), " but left image is ", MatTypeText(*left)));
   }
   out.left = std::move(*left);
   out.right = std::move(*right);
 
   if (frame.has_panoptic()) {
-    absl::StatusOr<cv::Mat> mask = DecodeImage(frame.panoptic(), "panoptic mask", format.width, format.height);
+    absl::StatusOr<cv::Mat> mask =
+        DecodeImage(frame.panoptic(), "panoptic mask", format.width, format.height);
     if (!mask.ok()) return mask.status();
     if (mask->type() != CV_16UC1 && mask->type() != CV_32SC1) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          "panoptic mask is ", MatTypeText(*mask), "; expected 16-bit PNG, RAW GRAY16 or RAW INT32"));
+      return absl::InvalidArgumentError(
+          absl::StrCat("panoptic mask is ",
+                       MatTypeText(*mask),
+                       "; expected 16-bit PNG, RAW GRAY16 or RAW INT32"));
     }
     out.panoptic = std::move(*mask);
   }
   if (frame.has_flow()) {
     if (!format.allow_flow) {
       return absl::InvalidArgumentError(
-          "flow is not accepted for a session with an unrectified rig (send rectified frames instead)");
+          "flow is not accepted for a session with an unrectified rig (send rectified frames "
+          "instead)");
     }
     if (frame.flow().encoding() != pb::IMAGE_ENCODING_RAW ||
         frame.flow().pixel_format() != pb::PIXEL_FORMAT_FLOAT32X2) {
@@ -483,8 +526,15 @@ absl::StatusOr<StereoFrame> FrameFromProto(const pb::Frame& frame, const FrameFo
     // Degenerate (zero-area) boxes happen with truncated labels and are
     // passed on as they are; only inverted boxes are malformed.
     if (b.x_max() < b.x_min() || b.y_max() < b.y_min()) {
-      return absl::InvalidArgumentError(absl::StrCat("detection box (", b.x_min(), ", ", b.y_min(), ", ",
-                                                     b.x_max(), ", ", b.y_max(), ") is inverted (max < min)"));
+      return absl::InvalidArgumentError(absl::StrCat("detection box (",
+                                                     b.x_min(),
+                                                     ", ",
+                                                     b.y_min(),
+                                                     ", ",
+                                                     b.x_max(),
+                                                     ", ",
+                                                     b.y_max(),
+                                                     ") is inverted (max < min)"));
     }
     DetectionBox box;
     box.class_id = b.class_id();
@@ -588,7 +638,8 @@ std::vector<pb::MapChunk> MapToChunks(const MapSnapshot& map, const MapChunkOpti
   std::vector<pb::MapChunk> chunks(1);
   pb::MapSummary* summary = chunks[0].mutable_summary();
   summary->set_num_points(options.skip_points ? 0 : static_cast<int64_t>(map.points.size()));
-  summary->set_num_keyframes(options.skip_keyframes ? 0 : static_cast<int64_t>(map.keyframes.size()));
+  summary->set_num_keyframes(options.skip_keyframes ? 0
+                                                    : static_cast<int64_t>(map.keyframes.size()));
   summary->set_num_clusters(options.skip_clusters ? 0 : static_cast<int64_t>(map.clusters.size()));
   summary->set_frames_processed(options.frames_processed);
   // Running estimate of the current chunk's size; a new chunk starts when the

@@ -5,10 +5,9 @@
 #pragma once
 
 #include <cstdint>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -64,7 +63,7 @@ absl::StatusOr<geometry::StereoCamera> RectifiedCameraFromProto(const pb::Stereo
 
 // What a session accepts for its incoming images.
 struct FrameFormat {
-  int width = 0;   // size of incoming images (before any rectification)
+  int width = 0;  // size of incoming images (before any rectification)
   int height = 0;
   bool allow_flow = true;  // false for unrectified rigs
 };

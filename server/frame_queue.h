@@ -38,7 +38,8 @@ class FrameQueue {
   // count grows (a client that never reads cannot grow memory either).
   static constexpr size_t kMaxPendingDropReports = 1024;
 
-  FrameQueue(int capacity, bool drop_oldest) : capacity_(capacity > 0 ? capacity : 1), drop_oldest_(drop_oldest) {}
+  FrameQueue(int capacity, bool drop_oldest)
+      : capacity_(capacity > 0 ? capacity : 1), drop_oldest_(drop_oldest) {}
 
   // False when the queue is closed (the item is discarded). May block under
   // BLOCK until room is free or the queue closes.

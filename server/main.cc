@@ -1,12 +1,12 @@
 // twistslam-server: the TwistSLAM gRPC service (DESIGN.md §7, docs/server.md).
+#include <glog/logging.h>
+
 #include <chrono>
 #include <csignal>
+#include <cstdio>
 #include <cstdlib>
 #include <future>
-#include <cstdio>
 #include <iostream>
-
-#include <glog/logging.h>
 
 #include "server/server.h"
 #include "server/server_flags.h"
@@ -15,7 +15,8 @@
 int main(int argc, char** argv) {
   google::InitGoogleLogging(argv[0]);
   FLAGS_logtostderr = true;
-  absl::StatusOr<twist::server::ParsedServerFlags> flags = twist::server::ParseServerFlags(argc, argv);
+  absl::StatusOr<twist::server::ParsedServerFlags> flags =
+      twist::server::ParseServerFlags(argc, argv);
   if (!flags.ok()) {
     std::cerr << "twistslam-server: " << flags.status().message() << " (see --help)\n";
     return 2;
@@ -35,7 +36,9 @@ int main(int argc, char** argv) {
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
   twist::server::SlamSystemFactory factory;
-  factory.create = [](const twist::SessionConfig& config) { return twist::SlamSystem::Create(config); };
+  factory.create = [](const twist::SessionConfig& config) {
+    return twist::SlamSystem::Create(config);
+  };
   factory.load = [](const std::string& path) { return twist::SlamSystem::Load(path); };
   absl::StatusOr<std::unique_ptr<twist::server::TwistServer>> server =
       twist::server::TwistServer::Start(flags->options, std::move(factory));
@@ -59,7 +62,8 @@ int main(int argc, char** argv) {
     (*server)->Wait();
   });
   if (done.wait_for(std::chrono::duration<double>(bound_s)) != std::future_status::ready) {
-    LOG(ERROR) << "shutdown did not finish within " << bound_s << " s (an engine call is stuck); exiting";
+    LOG(ERROR) << "shutdown did not finish within " << bound_s
+               << " s (an engine call is stuck); exiting";
     std::cout.flush();
     std::_Exit(1);
   }

@@ -18,8 +18,8 @@ namespace twist::server {
 struct MetricGauges {
   int sessions_loaded = 0;
   int sessions_streaming = 0;
-  int queue_depth_total = 0;   // frames waiting in all input queues
-  int queue_depth_max = 0;     // deepest single queue
+  int queue_depth_total = 0;  // frames waiting in all input queues
+  int queue_depth_max = 0;    // deepest single queue
   bool serving = true;
 };
 

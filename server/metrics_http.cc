@@ -9,9 +9,9 @@
 #include <cerrno>
 #include <cstring>
 
+#include "absl/strings/match.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
-#include "absl/strings/match.h"
 
 namespace twist::server {
 
@@ -20,9 +20,10 @@ MetricsHttpServer::~MetricsHttpServer() { Stop(); }
 absl::StatusOr<int> MetricsHttpServer::Start(const std::string& host_port, Render render) {
   const size_t colon = host_port.rfind(':');
   int port = -1;
-  if (colon == std::string::npos || !absl::SimpleAtoi(host_port.substr(colon + 1), &port) || port < 0 ||
-      port > 65535) {
-    return absl::InvalidArgumentError(absl::StrCat("--metrics-listen ", host_port, ": expected HOST:PORT"));
+  if (colon == std::string::npos || !absl::SimpleAtoi(host_port.substr(colon + 1), &port) ||
+      port < 0 || port > 65535) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--metrics-listen ", host_port, ": expected HOST:PORT"));
   }
   std::string host = host_port.substr(0, colon);
   if (host == "localhost" || host.empty()) host = "127.0.0.1";
@@ -30,7 +31,8 @@ absl::StatusOr<int> MetricsHttpServer::Start(const std::string& host_port, Rende
   addr.sin_family = AF_INET;
   addr.sin_port = htons(static_cast<uint16_t>(port));
   if (inet_pton(AF_INET, host.c_str(), &addr.sin_addr) != 1) {
-    return absl::InvalidArgumentError(absl::StrCat("--metrics-listen ", host_port, ": host must be an IPv4 address"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("--metrics-listen ", host_port, ": host must be an IPv4 address"));
   }
   const int fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
   if (fd < 0) return absl::InternalError(absl::StrCat("metrics socket: ", std::strerror(errno)));
@@ -39,7 +41,8 @@ absl::StatusOr<int> MetricsHttpServer::Start(const std::string& host_port, Rende
   if (bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) != 0 || listen(fd, 16) != 0) {
     const std::string reason = std::strerror(errno);
     close(fd);
-    return absl::UnavailableError(absl::StrCat("cannot listen on ", host_port, " for metrics: ", reason));
+    return absl::UnavailableError(
+        absl::StrCat("cannot listen on ", host_port, " for metrics: ", reason));
   }
   socklen_t len = sizeof(addr);
   getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
@@ -89,9 +92,14 @@ void MetricsHttpServer::Serve() {
       body = "only GET\n";
       type = "text/plain";
     }
-    const std::string response = absl::StrCat("HTTP/1.0 ", status, "\r\nContent-Type: ", type,
-                                              "\r\nContent-Length: ", body.size(),
-                                              "\r\nConnection: close\r\n\r\n", body);
+    const std::string response = absl::StrCat("HTTP/1.0 ",
+                                              status,
+                                              "\r\nContent-Type: ",
+                                              type,
+                                              "\r\nContent-Length: ",
+                                              body.size(),
+                                              "\r\nConnection: close\r\n\r\n",
+                                              body);
     size_t sent = 0;
     while (sent < response.size()) {
       const ssize_t n = send(conn, response.data() + sent, response.size() - sent, MSG_NOSIGNAL);

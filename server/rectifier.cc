@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -13,13 +12,16 @@ namespace {
 
 absl::Status CheckCamera(const RawCameraModel& c, const char* which, int width, int height) {
   for (double v : {c.fx, c.fy, c.cx, c.cy}) {
-    if (!std::isfinite(v)) return absl::InvalidArgumentError(absl::StrCat(which, " camera: non-finite intrinsics"));
+    if (!std::isfinite(v))
+      return absl::InvalidArgumentError(absl::StrCat(which, " camera: non-finite intrinsics"));
   }
   if (c.fx <= 0 || c.fy <= 0) {
-    return absl::InvalidArgumentError(absl::StrCat(which, " camera: focal lengths must be positive"));
+    return absl::InvalidArgumentError(
+        absl::StrCat(which, " camera: focal lengths must be positive"));
   }
   if (c.cx < 0 || c.cx >= width || c.cy < 0 || c.cy >= height) {
-    return absl::InvalidArgumentError(absl::StrCat(which, " camera: principal point outside the image"));
+    return absl::InvalidArgumentError(
+        absl::StrCat(which, " camera: principal point outside the image"));
   }
   const size_t n = c.distortion.size();
   if (n != 0 && n != 4 && n != 5 && n != 8) {
@@ -27,12 +29,15 @@ absl::Status CheckCamera(const RawCameraModel& c, const char* which, int width, 
         absl::StrCat(which, " camera: ", n, " distortion coefficients; expected 0, 4, 5 or 8"));
   }
   for (double d : c.distortion) {
-    if (!std::isfinite(d)) return absl::InvalidArgumentError(absl::StrCat(which, " camera: non-finite distortion"));
+    if (!std::isfinite(d))
+      return absl::InvalidArgumentError(absl::StrCat(which, " camera: non-finite distortion"));
   }
   return absl::OkStatus();
 }
 
-cv::Matx33d Intrinsics(const RawCameraModel& c) { return cv::Matx33d(c.fx, 0, c.cx, 0, c.fy, c.cy, 0, 0, 1); }
+cv::Matx33d Intrinsics(const RawCameraModel& c) {
+  return cv::Matx33d(c.fx, 0, c.cx, 0, c.fy, c.cy, 0, 0, 1);
+}
 
 cv::Mat Distortion(const RawCameraModel& c) {
   if (c.distortion.empty()) return cv::Mat::zeros(1, 4, CV_64F);
@@ -49,7 +54,8 @@ absl::StatusOr<StereoRectifier> StereoRectifier::Create(const RawStereoRig& rig)
   if (absl::Status s = CheckCamera(rig.right, "right", rig.width, rig.height); !s.ok()) return s;
   const Eigen::Vector3d t = rig.right_from_left.translation();
   if (!t.allFinite() || t.norm() < 1e-6) {
-    return absl::InvalidArgumentError("unrectified rig: right_from_left translation (baseline) must be non-zero");
+    return absl::InvalidArgumentError(
+        "unrectified rig: right_from_left translation (baseline) must be non-zero");
   }
   const Eigen::Matrix3d r = rig.right_from_left.rotation();
   cv::Matx33d r_cv;
@@ -63,12 +69,26 @@ absl::StatusOr<StereoRectifier> StereoRectifier::Create(const RawStereoRig& rig)
   const cv::Mat d1 = Distortion(rig.left), d2 = Distortion(rig.right);
   cv::Mat r1, r2, p1, p2, q;
   try {
-    cv::stereoRectify(k1, d1, k2, d2, size, r_cv, t_cv, r1, r2, p1, p2, q, cv::CALIB_ZERO_DISPARITY,
-                      /*alpha=*/0.0, size);
+    cv::stereoRectify(k1,
+                      d1,
+                      k2,
+                      d2,
+                      size,
+                      r_cv,
+                      t_cv,
+                      r1,
+                      r2,
+                      p1,
+                      p2,
+                      q,
+                      cv::CALIB_ZERO_DISPARITY,
+                      /*alpha=*/0.0,
+                      size);
     cv::initUndistortRectifyMap(k1, d1, r1, p1, size, CV_16SC2, out.left_map1_, out.left_map2_);
     cv::initUndistortRectifyMap(k2, d2, r2, p2, size, CV_16SC2, out.right_map1_, out.right_map2_);
   } catch (const cv::Exception& e) {
-    return absl::InvalidArgumentError(absl::StrCat("unrectified rig: rectification failed: ", e.what()));
+    return absl::InvalidArgumentError(
+        absl::StrCat("unrectified rig: rectification failed: ", e.what()));
   }
   geometry::StereoCamera& cam = out.rectified_;
   cam.fx = p1.at<double>(0, 0);
@@ -80,10 +100,12 @@ absl::StatusOr<StereoRectifier> StereoRectifier::Create(const RawStereoRig& rig)
   cam.width = rig.width;
   cam.height = rig.height;
   if (std::abs(p2.at<double>(1, 3)) > 1e-6 * std::abs(p2.at<double>(0, 3))) {
-    return absl::InvalidArgumentError("unrectified rig: the cameras are stacked vertically; only horizontal rigs are supported");
+    return absl::InvalidArgumentError(
+        "unrectified rig: the cameras are stacked vertically; only horizontal rigs are supported");
   }
   if (absl::Status s = cam.Validate(); !s.ok()) {
-    return absl::InvalidArgumentError(absl::StrCat("unrectified rig: rectified camera invalid: ", s.message()));
+    return absl::InvalidArgumentError(
+        absl::StrCat("unrectified rig: rectified camera invalid: ", s.message()));
   }
   out.k_left_ = k1;
   out.r_left_ = cv::Matx33d(r1);

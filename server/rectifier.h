@@ -4,9 +4,8 @@
 // thread without locking.
 #pragma once
 
-#include <vector>
-
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "slam/common/stereo_frame.h"

@@ -1,13 +1,13 @@
 #include "server/server.h"
 
-#include <fstream>
-#include <sstream>
-
 #include <glog/logging.h>
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/security/server_credentials.h>
 #include <grpcpp/server_builder.h>
+
+#include <fstream>
+#include <sstream>
 
 #include "absl/strings/str_cat.h"
 
@@ -25,12 +25,12 @@ absl::StatusOr<std::string> ReadWholeFile(const std::string& path, const char* w
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<TwistServer>> TwistServer::Start(const ServerOptions& options,
-                                                               SlamSystemFactory factory) {
+                                                                SlamSystemFactory factory) {
   std::unique_ptr<TwistServer> s(new TwistServer());
   s->options_ = options;
   if (options.max_message_bytes < (4 << 20) || options.max_message_bytes > (1LL << 30)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("max message size ", options.max_message_bytes, " bytes must be in [4 MiB, 1 GiB]"));
+    return absl::InvalidArgumentError(absl::StrCat(
+        "max message size ", options.max_message_bytes, " bytes must be in [4 MiB, 1 GiB]"));
   }
   if (!options.auth_token_file.empty()) {
     absl::StatusOr<TokenAuthenticator> auth = TokenAuthenticator::FromFile(options.auth_token_file);
@@ -52,7 +52,8 @@ absl::StatusOr<std::unique_ptr<TwistServer>> TwistServer::Start(const ServerOpti
     credentials = grpc::SslServerCredentials(ssl);
   }
 
-  s->manager_ = std::make_unique<SessionManager>(options.sessions, std::move(factory), &s->metrics_);
+  s->manager_ =
+      std::make_unique<SessionManager>(options.sessions, std::move(factory), &s->metrics_);
   ServiceInfo info;
   info.version = kServerVersion;
   info.max_message_bytes = options.max_message_bytes;
@@ -71,7 +72,8 @@ absl::StatusOr<std::unique_ptr<TwistServer>> TwistServer::Start(const ServerOpti
   builder.SetMaxReceiveMessageSize(static_cast<int>(options.max_message_bytes));
   builder.SetMaxSendMessageSize(static_cast<int>(options.max_message_bytes));
   if (options.sync_server_threads > 0) {
-    builder.SetSyncServerOption(grpc::ServerBuilder::SyncServerOption::MAX_POLLERS, options.sync_server_threads);
+    builder.SetSyncServerOption(grpc::ServerBuilder::SyncServerOption::MAX_POLLERS,
+                                options.sync_server_threads);
   }
   // Detect dead peers of long-lived streams.
   builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_TIME_MS, 30000);
@@ -89,15 +91,16 @@ absl::StatusOr<std::unique_ptr<TwistServer>> TwistServer::Start(const ServerOpti
   }
   if (!options.metrics_listen.empty()) {
     TwistServer* raw = s.get();
-    absl::StatusOr<int> port = s->metrics_http_.Start(options.metrics_listen, [raw] { return raw->MetricsText(); });
+    absl::StatusOr<int> port =
+        s->metrics_http_.Start(options.metrics_listen, [raw] { return raw->MetricsText(); });
     if (!port.ok()) {
       s->Shutdown();
       return port.status();
     }
     s->metrics_port_ = *port;
   }
-  LOG(INFO) << "twistslam-server " << kServerVersion << " listening on " << s->address_ << (tls ? " (TLS)" : "")
-            << (s->auth_.enabled() ? " (auth)" : "");
+  LOG(INFO) << "twistslam-server " << kServerVersion << " listening on " << s->address_
+            << (tls ? " (TLS)" : "") << (s->auth_.enabled() ? " (auth)" : "");
   return s;
 }
 
@@ -117,10 +120,11 @@ void TwistServer::Shutdown() {
   const absl::Time start = absl::Now();
   manager_->DrainStreams(start + absl::Seconds(options_.drain_timeout_s));
   manager_->PersistAll();
-  const auto deadline = std::chrono::system_clock::now() +
-                        std::chrono::milliseconds(static_cast<int64_t>(
-                            std::max(0.0, options_.shutdown_deadline_s - absl::ToDoubleSeconds(absl::Now() - start)) *
-                            1000));
+  const auto deadline =
+      std::chrono::system_clock::now() +
+      std::chrono::milliseconds(static_cast<int64_t>(
+          std::max(0.0, options_.shutdown_deadline_s - absl::ToDoubleSeconds(absl::Now() - start)) *
+          1000));
   server_->Shutdown(deadline);
   metrics_http_.Stop();
   LOG(INFO) << "shut down in " << absl::ToDoubleSeconds(absl::Now() - start) << " s";

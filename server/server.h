@@ -3,10 +3,10 @@
 // reflection services, metrics endpoint, and graceful shutdown.
 #pragma once
 
+#include <grpcpp/server.h>
+
 #include <memory>
 #include <string>
-
-#include <grpcpp/server.h>
 
 #include "absl/status/statusor.h"
 #include "absl/time/time.h"
@@ -24,21 +24,21 @@ struct ServerOptions {
   std::string listen = "127.0.0.1:0";  // HOST:PORT; port 0 picks a free port
   std::string tls_cert_file;           // PEM; with tls_key_file enables TLS
   std::string tls_key_file;
-  std::string auth_token_file;         // enables bearer-token auth
-  std::string metrics_listen;          // HOST:PORT of the Prometheus endpoint; empty = off
+  std::string auth_token_file;  // enables bearer-token auth
+  std::string metrics_listen;   // HOST:PORT of the Prometheus endpoint; empty = off
   // Largest message either way. Deliberately far above gRPC's 4 MiB default:
   // a raw 1242x375 RGB stereo pair with mask is ~3.2 MiB.
   int64_t max_message_bytes = 64 << 20;
-  double drain_timeout_s = 5.0;        // shutdown: time to answer queued frames
-  double shutdown_deadline_s = 10.0;   // shutdown: hard deadline for open calls
-  int sync_server_threads = 0;         // 0 = gRPC default
+  double drain_timeout_s = 5.0;       // shutdown: time to answer queued frames
+  double shutdown_deadline_s = 10.0;  // shutdown: hard deadline for open calls
+  int sync_server_threads = 0;        // 0 = gRPC default
   SessionManagerOptions sessions;
 };
 
 class TwistServer {
  public:
   static absl::StatusOr<std::unique_ptr<TwistServer>> Start(const ServerOptions& options,
-                                                           SlamSystemFactory factory);
+                                                            SlamSystemFactory factory);
   ~TwistServer();
 
   int port() const { return port_; }

@@ -3,29 +3,32 @@
 #include <filesystem>
 #include <functional>
 #include <map>
-
 #include <opencv2/core/persistence.hpp>
 
+#include "absl/strings/match.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
-#include "absl/strings/match.h"
 
 namespace twist::server {
 namespace {
 
-absl::Status ParseInt(const std::string& flag, const std::string& v, int64_t lo, int64_t hi, int64_t* out) {
+absl::Status ParseInt(
+    const std::string& flag, const std::string& v, int64_t lo, int64_t hi, int64_t* out) {
   int64_t x = 0;
   if (!absl::SimpleAtoi(v, &x) || x < lo || x > hi) {
-    return absl::InvalidArgumentError(absl::StrCat(flag, ": '", v, "' is not an integer in [", lo, ", ", hi, "]"));
+    return absl::InvalidArgumentError(
+        absl::StrCat(flag, ": '", v, "' is not an integer in [", lo, ", ", hi, "]"));
   }
   *out = x;
   return absl::OkStatus();
 }
 
-absl::Status ParseDouble(const std::string& flag, const std::string& v, double lo, double hi, double* out) {
+absl::Status ParseDouble(
+    const std::string& flag, const std::string& v, double lo, double hi, double* out) {
   double x = 0;
   if (!absl::SimpleAtod(v, &x) || !(x >= lo && x <= hi)) {
-    return absl::InvalidArgumentError(absl::StrCat(flag, ": '", v, "' is not a number in [", lo, ", ", hi, "]"));
+    return absl::InvalidArgumentError(
+        absl::StrCat(flag, ": '", v, "' is not a number in [", lo, ", ", hi, "]"));
   }
   *out = x;
   return absl::OkStatus();
@@ -36,7 +39,8 @@ absl::Status ParseDouble(const std::string& flag, const std::string& v, double l
 struct Setting {
   const char* name;
   const char* help;
-  std::function<absl::Status(const std::string& flag, const std::string& value, ServerOptions*)> set;
+  std::function<absl::Status(const std::string& flag, const std::string& value, ServerOptions*)>
+      set;
 };
 
 std::vector<Setting> Settings() {
@@ -60,46 +64,78 @@ std::vector<Setting> Settings() {
     };
   };
   return {
-      {"listen", "HOST:PORT to serve on (port 0: any free port) [127.0.0.1:0]", str(&ServerOptions::listen)},
-      {"state-dir", "directory for persisted sessions (enables persistence)",
+      {"listen",
+       "HOST:PORT to serve on (port 0: any free port) [127.0.0.1:0]",
+       str(&ServerOptions::listen)},
+      {"state-dir",
+       "directory for persisted sessions (enables persistence)",
        [](const std::string&, const std::string& v, ServerOptions* o) {
          o->sessions.state_dir = v;
          return absl::OkStatus();
        }},
-      {"auth-token-file", "file of bearer tokens (`<token> [<principal>]` per line); enables auth",
+      {"auth-token-file",
+       "file of bearer tokens (`<token> [<principal>]` per line); enables auth",
        str(&ServerOptions::auth_token_file)},
-      {"tls-cert", "PEM certificate chain (with --tls-key enables TLS)", str(&ServerOptions::tls_cert_file)},
+      {"tls-cert",
+       "PEM certificate chain (with --tls-key enables TLS)",
+       str(&ServerOptions::tls_cert_file)},
       {"tls-key", "PEM private key", str(&ServerOptions::tls_key_file)},
-      {"metrics-listen", "HOST:PORT of the Prometheus /metrics endpoint (off by default)",
+      {"metrics-listen",
+       "HOST:PORT of the Prometheus /metrics endpoint (off by default)",
        str(&ServerOptions::metrics_listen)},
-      {"max-sessions", "sessions loaded at once [16]",
-       integer(1, 100000, [](ServerOptions* o, int64_t x) { o->sessions.max_sessions = static_cast<int>(x); })},
-      {"max-message-mb", "largest gRPC message in MiB, >= 4 [64]",
+      {"max-sessions",
+       "sessions loaded at once [16]",
+       integer(
+           1,
+           100000,
+           [](ServerOptions* o, int64_t x) { o->sessions.max_sessions = static_cast<int>(x); })},
+      {"max-message-mb",
+       "largest gRPC message in MiB, >= 4 [64]",
        integer(4, 1024, [](ServerOptions* o, int64_t x) { o->max_message_bytes = x << 20; })},
-      {"queue-capacity", "default per-session input queue (frames) [4]",
-       integer(1, 4096,
-               [](ServerOptions* o, int64_t x) { o->sessions.limits.default_queue_capacity = static_cast<int>(x); })},
-      {"max-queue-capacity", "largest per-session input queue a client may ask for [64]",
-       integer(1, 4096,
-               [](ServerOptions* o, int64_t x) { o->sessions.limits.max_queue_capacity = static_cast<int>(x); })},
-      {"idle-timeout-s", "default idle-session expiry in seconds [600]",
-       dbl(0.001, 1e9, [](ServerOptions* o) { return &o->sessions.limits.default_idle_timeout_s; })},
-      {"max-idle-timeout-s", "largest idle expiry a client may ask for [604800]",
+      {"queue-capacity",
+       "default per-session input queue (frames) [4]",
+       integer(1,
+               4096,
+               [](ServerOptions* o, int64_t x) {
+                 o->sessions.limits.default_queue_capacity = static_cast<int>(x);
+               })},
+      {"max-queue-capacity",
+       "largest per-session input queue a client may ask for [64]",
+       integer(1,
+               4096,
+               [](ServerOptions* o, int64_t x) {
+                 o->sessions.limits.max_queue_capacity = static_cast<int>(x);
+               })},
+      {"idle-timeout-s",
+       "default idle-session expiry in seconds [600]",
+       dbl(0.001,
+           1e9,
+           [](ServerOptions* o) { return &o->sessions.limits.default_idle_timeout_s; })},
+      {"max-idle-timeout-s",
+       "largest idle expiry a client may ask for [604800]",
        dbl(0.001, 1e9, [](ServerOptions* o) { return &o->sessions.limits.max_idle_timeout_s; })},
-      {"persist-interval-s", "periodic save of changed sessions, 0 = off [60]",
+      {"persist-interval-s",
+       "periodic save of changed sessions, 0 = off [60]",
        dbl(0, 1e9, [](ServerOptions* o) { return &o->sessions.persist_interval_s; })},
-      {"drain-timeout-s", "shutdown: time for streams to answer queued frames [5]",
+      {"drain-timeout-s",
+       "shutdown: time for streams to answer queued frames [5]",
        dbl(0, 3600, [](ServerOptions* o) { return &o->drain_timeout_s; })},
-      {"shutdown-deadline-s", "shutdown: hard deadline for open calls [10]",
+      {"shutdown-deadline-s",
+       "shutdown: hard deadline for open calls [10]",
        dbl(0, 3600, [](ServerOptions* o) { return &o->shutdown_deadline_s; })},
-      {"max-image-size", "largest image side in pixels [8192]",
-       integer(16, 65536,
+      {"max-image-size",
+       "largest image side in pixels [8192]",
+       integer(16,
+               65536,
                [](ServerOptions* o, int64_t x) {
                  o->sessions.limits.max_image_width = static_cast<int>(x);
                  o->sessions.limits.max_image_height = static_cast<int>(x);
                })},
-      {"threads", "gRPC sync-server polling threads, 0 = gRPC default [0]",
-       integer(0, 1024, [](ServerOptions* o, int64_t x) { o->sync_server_threads = static_cast<int>(x); })},
+      {"threads",
+       "gRPC sync-server polling threads, 0 = gRPC default [0]",
+       integer(0,
+               1024,
+               [](ServerOptions* o, int64_t x) { o->sync_server_threads = static_cast<int>(x); })},
   };
 }
 
@@ -117,7 +153,8 @@ absl::Status ReadSlamOptions(const cv::FileNode& node, SlamOptions* o) {
       } else if (v == "background") {
         o->mapping_mode = MappingMode::kBackground;
       } else {
-        return absl::InvalidArgumentError("config: slam.mapping_mode must be synchronous or background");
+        return absl::InvalidArgumentError(
+            "config: slam.mapping_mode must be synchronous or background");
       }
       continue;
     }
@@ -125,29 +162,44 @@ absl::Status ReadSlamOptions(const cv::FileNode& node, SlamOptions* o) {
       return absl::InvalidArgumentError(absl::StrCat("config: slam.", key, " must be a number"));
     }
     const double v = n.real();
-    if (key == "num_features") o->num_features = static_cast<int>(v);
-    else if (key == "num_levels") o->num_levels = static_cast<int>(v);
-    else if (key == "scale_factor") o->scale_factor = v;
-    else if (key == "fast_threshold") o->fast_threshold = static_cast<int>(v);
-    else if (key == "max_depth_baselines") o->max_depth_baselines = v;
-    else if (key == "local_ba_iterations") o->local_ba_iterations = static_cast<int>(v);
-    else if (key == "num_threads") o->num_threads = static_cast<int>(v);
-    else if (key == "use_masks") o->use_masks = v != 0;
-    else if (key == "track_objects") o->track_objects = v != 0;
-    else if (key == "constrain_objects") o->constrain_objects = v != 0;
-    else if (key == "temporal_window_s") o->temporal_window_s = v;
-    else if (key == "seed") o->seed = static_cast<uint64_t>(v);
-    else return absl::InvalidArgumentError(absl::StrCat("config: unknown key slam.", key));
+    if (key == "num_features")
+      o->num_features = static_cast<int>(v);
+    else if (key == "num_levels")
+      o->num_levels = static_cast<int>(v);
+    else if (key == "scale_factor")
+      o->scale_factor = v;
+    else if (key == "fast_threshold")
+      o->fast_threshold = static_cast<int>(v);
+    else if (key == "max_depth_baselines")
+      o->max_depth_baselines = v;
+    else if (key == "local_ba_iterations")
+      o->local_ba_iterations = static_cast<int>(v);
+    else if (key == "num_threads")
+      o->num_threads = static_cast<int>(v);
+    else if (key == "use_masks")
+      o->use_masks = v != 0;
+    else if (key == "track_objects")
+      o->track_objects = v != 0;
+    else if (key == "constrain_objects")
+      o->constrain_objects = v != 0;
+    else if (key == "temporal_window_s")
+      o->temporal_window_s = v;
+    else if (key == "seed")
+      o->seed = static_cast<uint64_t>(v);
+    else
+      return absl::InvalidArgumentError(absl::StrCat("config: unknown key slam.", key));
   }
   return absl::OkStatus();
 }
 
 absl::Status ApplyConfigFile(const std::string& path, ServerOptions* options) {
-  if (!std::filesystem::exists(path)) return absl::NotFoundError(absl::StrCat("--config ", path, ": no such file"));
+  if (!std::filesystem::exists(path))
+    return absl::NotFoundError(absl::StrCat("--config ", path, ": no such file"));
   cv::FileStorage fs;
   try {
     if (!fs.open(path, cv::FileStorage::READ)) {
-      return absl::InvalidArgumentError(absl::StrCat("--config ", path, ": cannot parse (YAML or JSON expected)"));
+      return absl::InvalidArgumentError(
+          absl::StrCat("--config ", path, ": cannot parse (YAML or JSON expected)"));
     }
   } catch (const cv::Exception& e) {
     return absl::InvalidArgumentError(absl::StrCat("--config ", path, ": ", e.what()));
@@ -163,11 +215,13 @@ absl::Status ApplyConfigFile(const std::string& path, ServerOptions* options) {
     const cv::FileNode n = *it;
     const std::string key = n.name();
     if (key == "slam") {
-      if (absl::Status s = ReadSlamOptions(n, &options->sessions.limits.default_options); !s.ok()) return s;
+      if (absl::Status s = ReadSlamOptions(n, &options->sessions.limits.default_options); !s.ok())
+        return s;
       continue;
     }
     auto found = by_key.find(key);
-    if (found == by_key.end()) return absl::InvalidArgumentError(absl::StrCat("--config ", path, ": unknown key ", key));
+    if (found == by_key.end())
+      return absl::InvalidArgumentError(absl::StrCat("--config ", path, ": unknown key ", key));
     std::string value;
     if (n.isString()) {
       value = n.string();
@@ -176,7 +230,8 @@ absl::Status ApplyConfigFile(const std::string& path, ServerOptions* options) {
     } else if (n.isReal()) {
       value = absl::StrCat(n.real());
     } else {
-      return absl::InvalidArgumentError(absl::StrCat("--config ", path, ": ", key, " must be a scalar"));
+      return absl::InvalidArgumentError(
+          absl::StrCat("--config ", path, ": ", key, " must be a scalar"));
     }
     if (absl::Status s = found->second.set(key, value, options); !s.ok()) {
       return absl::InvalidArgumentError(absl::StrCat("--config ", path, ": ", s.message()));
@@ -190,13 +245,21 @@ absl::Status ApplyConfigFile(const std::string& path, ServerOptions* options) {
 std::string ServerUsage() {
   std::string out =
       "usage: twistslam-server --listen HOST:PORT [--config FILE] [--state-dir DIR]\n"
-      "                        [--auth-token-file FILE] [--tls-cert FILE --tls-key FILE] [options]\n\n"
+      "                        [--auth-token-file FILE] [--tls-cert FILE --tls-key FILE] "
+      "[options]\n\n"
       "options:\n"
-      "  --config FILE            YAML/JSON file with any option below (key with '_') and a `slam:` map\n";
+      "  --config FILE            YAML/JSON file with any option below (key with '_') and a "
+      "`slam:` map\n";
   for (const Setting& s : Settings()) {
-    absl::StrAppend(&out, "  --", s.name, std::string(std::max<size_t>(1, 23 - strlen(s.name)), ' '), s.help, "\n");
+    absl::StrAppend(&out,
+                    "  --",
+                    s.name,
+                    std::string(std::max<size_t>(1, 23 - strlen(s.name)), ' '),
+                    s.help,
+                    "\n");
   }
-  absl::StrAppend(&out, "  --v N                    verbose logging level (glog VLOG)\n",
+  absl::StrAppend(&out,
+                  "  --v N                    verbose logging level (glog VLOG)\n",
                   "\nWith port 0 the first line on stdout is `listening on HOST:PORT`.\n"
                   "SIGTERM/SIGINT shut down gracefully (drain, persist, stop).\n");
   return out;
@@ -213,14 +276,16 @@ absl::StatusOr<ParsedServerFlags> ParseServerFlags(int argc, char** argv) {
       parsed.help = true;
       return parsed;
     }
-    if (!absl::StartsWith(arg, "--")) return absl::InvalidArgumentError(absl::StrCat("unexpected argument '", arg, "'"));
+    if (!absl::StartsWith(arg, "--"))
+      return absl::InvalidArgumentError(absl::StrCat("unexpected argument '", arg, "'"));
     std::string key = arg.substr(2), value;
     const size_t eq = key.find('=');
     if (eq != std::string::npos) {
       value = key.substr(eq + 1);
       key = key.substr(0, eq);
     } else {
-      if (i + 1 >= argc) return absl::InvalidArgumentError(absl::StrCat("--", key, " needs a value"));
+      if (i + 1 >= argc)
+        return absl::InvalidArgumentError(absl::StrCat("--", key, " needs a value"));
       value = argv[++i];
     }
     if (key == "config") {
@@ -239,8 +304,10 @@ absl::StatusOr<ParsedServerFlags> ParseServerFlags(int argc, char** argv) {
   }
   const std::vector<Setting> settings = Settings();
   for (const std::string& key : order) {
-    auto it = std::find_if(settings.begin(), settings.end(), [&](const Setting& s) { return key == s.name; });
-    if (it == settings.end()) return absl::InvalidArgumentError(absl::StrCat("unknown flag --", key));
+    auto it = std::find_if(
+        settings.begin(), settings.end(), [&](const Setting& s) { return key == s.name; });
+    if (it == settings.end())
+      return absl::InvalidArgumentError(absl::StrCat("unknown flag --", key));
     if (absl::Status s = it->set("--" + key, values[key], &parsed.options); !s.ok()) return s;
   }
   const auto& l = parsed.options.sessions.limits;

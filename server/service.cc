@@ -1,10 +1,10 @@
 #include "server/service.h"
 
+#include <glog/logging.h>
+
 #include <atomic>
 #include <chrono>
 #include <thread>
-
-#include <glog/logging.h>
 
 #include "absl/strings/str_cat.h"
 #include "server/status_util.h"
@@ -16,7 +16,10 @@ double MsSince(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
 }
 
-void FillError(int64_t index, int64_t timestamp_ns, const absl::Status& status, pb::StreamResponse* out) {
+void FillError(int64_t index,
+               int64_t timestamp_ns,
+               const absl::Status& status,
+               pb::StreamResponse* out) {
   pb::FrameError* e = out->mutable_error();
   e->set_index(index);
   e->set_timestamp_ns(timestamp_ns);
@@ -43,9 +46,11 @@ bool RunWorker(Session* session,
       pb::FramesDropped* d = response.mutable_dropped();
       for (int64_t i : dropped) d->add_indices(i);
       d->set_total_dropped(session->Info().frames_dropped());
-      d->set_reason(absl::StrCat(dropped_count,
-                                 " frame(s) dropped: input queue full (OVERFLOW_POLICY_DROP_OLDEST, capacity ",
-                                 queue->capacity(), ")"));
+      d->set_reason(absl::StrCat(
+          dropped_count,
+          " frame(s) dropped: input queue full (OVERFLOW_POLICY_DROP_OLDEST, capacity ",
+          queue->capacity(),
+          ")"));
       if (item) {
         if (!stream->Write(response)) return false;
       } else {
@@ -114,20 +119,24 @@ grpc::Status SlamServiceImpl::CreateSession(grpc::ServerContext* context,
   return grpc::Status::OK;
 }
 
-grpc::Status SlamServiceImpl::Stream(grpc::ServerContext* context,
-                                     grpc::ServerReaderWriter<pb::StreamResponse, pb::StreamRequest>* stream) {
+grpc::Status SlamServiceImpl::Stream(
+    grpc::ServerContext* context,
+    grpc::ServerReaderWriter<pb::StreamResponse, pb::StreamRequest>* stream) {
   absl::StatusOr<std::string> principal = auth_->Authenticate(*context);
   if (!principal.ok()) return ToGrpcStatus(principal.status());
   if (!manager_->accepting()) {
-    return grpc::Status(grpc::StatusCode::UNAVAILABLE, "server is shutting down; resume the session later");
+    return grpc::Status(grpc::StatusCode::UNAVAILABLE,
+                        "server is shutting down; resume the session later");
   }
   pb::StreamRequest request;
   if (!stream->Read(&request)) return grpc::Status::OK;  // client left without binding
   if (!request.has_bind()) {
-    return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION,
-                        "the first Stream message must be a BindStream (a frame arrived before binding)");
+    return grpc::Status(
+        grpc::StatusCode::FAILED_PRECONDITION,
+        "the first Stream message must be a BindStream (a frame arrived before binding)");
   }
-  absl::StatusOr<std::shared_ptr<Session>> found = manager_->Get(request.bind().session_id(), *principal);
+  absl::StatusOr<std::shared_ptr<Session>> found =
+      manager_->Get(request.bind().session_id(), *principal);
   if (!found.ok()) return ToGrpcStatus(found.status());
   std::shared_ptr<Session> session = std::move(*found);
 
@@ -143,7 +152,8 @@ grpc::Status SlamServiceImpl::Stream(grpc::ServerContext* context,
   VLOG(1) << "session " << session->id() << ": stream bound";
   {
     std::vector<pb::FrameUpdate> replay;
-    if (request.bind().replay()) replay = session->UpdatesAfter(request.bind().replay_after_timestamp_ns());
+    if (request.bind().replay())
+      replay = session->UpdatesAfter(request.bind().replay_after_timestamp_ns());
     pb::StreamResponse bound;
     *bound.mutable_bound()->mutable_session() = session->Info();
     bound.mutable_bound()->set_replay_count(static_cast<int32_t>(replay.size()));
@@ -172,9 +182,10 @@ grpc::Status SlamServiceImpl::Stream(grpc::ServerContext* context,
       // Tell the client why before ending the call (a cancelled call reaches
       // the client as CANCELLED, which it would take for a network failure).
       pb::StreamResponse notice;
-      FillError(-1, 0,
-                absl::AbortedError(absl::StrCat("stream taken over by a newer stream for session '",
-                                                session->id(), "'")),
+      FillError(-1,
+                0,
+                absl::AbortedError(absl::StrCat(
+                    "stream taken over by a newer stream for session '", session->id(), "'")),
                 &notice);
       stream->Write(notice);
       context->TryCancel();
@@ -212,7 +223,8 @@ grpc::Status SlamServiceImpl::Stream(grpc::ServerContext* context,
   const bool cancelled = context->IsCancelled() || handle.taken_over || write_failed;
   if (cancelled) {
     const int discarded = queue.Abort();
-    if (discarded > 0) VLOG(1) << "session " << session->id() << ": " << discarded << " queued frame(s) discarded";
+    if (discarded > 0)
+      VLOG(1) << "session " << session->id() << ": " << discarded << " queued frame(s) discarded";
   } else {
     queue.CloseInput();  // half-close or drain: answer every queued frame
   }
@@ -220,15 +232,17 @@ grpc::Status SlamServiceImpl::Stream(grpc::ServerContext* context,
   session->Unbind(&handle);
   VLOG(1) << "session " << session->id() << ": stream ended";
   if (handle.taken_over) {
-    return grpc::Status(grpc::StatusCode::ABORTED,
-                        absl::StrCat("stream taken over by a newer stream for session '", session->id(), "'"));
+    return grpc::Status(
+        grpc::StatusCode::ABORTED,
+        absl::StrCat("stream taken over by a newer stream for session '", session->id(), "'"));
   }
   if (session->closed()) {
     return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION,
                         absl::StrCat("session '", session->id(), "' was closed or unloaded"));
   }
   if (handle.shutdown) {
-    return grpc::Status(grpc::StatusCode::UNAVAILABLE, "server is shutting down; resume the session later");
+    return grpc::Status(grpc::StatusCode::UNAVAILABLE,
+                        "server is shutting down; resume the session later");
   }
   if (context->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "stream cancelled");
   return grpc::Status::OK;
@@ -239,7 +253,8 @@ grpc::Status SlamServiceImpl::GetMap(grpc::ServerContext* context,
                                      grpc::ServerWriter<pb::MapChunk>* writer) {
   absl::StatusOr<std::string> principal = auth_->Authenticate(*context);
   if (!principal.ok()) return ToGrpcStatus(principal.status());
-  absl::StatusOr<std::shared_ptr<Session>> session = manager_->Get(request->session_id(), *principal);
+  absl::StatusOr<std::shared_ptr<Session>> session =
+      manager_->Get(request->session_id(), *principal);
   if (!session.ok()) return ToGrpcStatus(session.status());
   if (request->max_chunk_bytes() < 0) {
     return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "max_chunk_bytes is negative");
@@ -248,7 +263,8 @@ grpc::Status SlamServiceImpl::GetMap(grpc::ServerContext* context,
   absl::StatusOr<MapSnapshot> map = (*session)->Snapshot(&frames);
   if (!map.ok()) return ToGrpcStatus(map.status());
   MapChunkOptions options;
-  const int64_t requested = request->max_chunk_bytes() == 0 ? (1 << 20) : request->max_chunk_bytes();
+  const int64_t requested =
+      request->max_chunk_bytes() == 0 ? (1 << 20) : request->max_chunk_bytes();
   options.max_chunk_bytes = std::clamp<int64_t>(requested, 64 << 10, info_.max_message_bytes);
   options.skip_points = request->skip_points();
   options.skip_keyframes = request->skip_keyframes();
@@ -256,7 +272,8 @@ grpc::Status SlamServiceImpl::GetMap(grpc::ServerContext* context,
   options.skip_trajectories = request->skip_trajectories();
   options.frames_processed = frames;
   for (const pb::MapChunk& chunk : MapToChunks(*map, options)) {
-    if (context->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "map fetch cancelled");
+    if (context->IsCancelled())
+      return grpc::Status(grpc::StatusCode::CANCELLED, "map fetch cancelled");
     if (!writer->Write(chunk)) return grpc::Status(grpc::StatusCode::CANCELLED, "client went away");
   }
   return grpc::Status::OK;
@@ -281,7 +298,8 @@ grpc::Status SlamServiceImpl::ListSessions(grpc::ServerContext* context,
                                            pb::ListSessionsResponse* response) {
   absl::StatusOr<std::string> principal = auth_->Authenticate(*context);
   if (!principal.ok()) return ToGrpcStatus(principal.status());
-  for (pb::SessionInfo& info : manager_->List(*principal)) *response->add_sessions() = std::move(info);
+  for (pb::SessionInfo& info : manager_->List(*principal))
+    *response->add_sessions() = std::move(info);
   return grpc::Status::OK;
 }
 
@@ -345,6 +363,8 @@ grpc::Status SlamServiceImpl::GetMetrics(grpc::ServerContext* context,
   return grpc::Status::OK;
 }
 
-std::string SlamServiceImpl::MetricsText() const { return metrics_->PrometheusText(manager_->Gauges()); }
+std::string SlamServiceImpl::MetricsText() const {
+  return metrics_->PrometheusText(manager_->Gauges());
+}
 
 }  // namespace twist::server

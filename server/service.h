@@ -30,8 +30,9 @@ class SlamServiceImpl final : public pb::SlamService::Service {
   grpc::Status CreateSession(grpc::ServerContext* context,
                              const pb::CreateSessionRequest* request,
                              pb::CreateSessionResponse* response) override;
-  grpc::Status Stream(grpc::ServerContext* context,
-                      grpc::ServerReaderWriter<pb::StreamResponse, pb::StreamRequest>* stream) override;
+  grpc::Status Stream(
+      grpc::ServerContext* context,
+      grpc::ServerReaderWriter<pb::StreamResponse, pb::StreamRequest>* stream) override;
   grpc::Status GetMap(grpc::ServerContext* context,
                       const pb::GetMapRequest* request,
                       grpc::ServerWriter<pb::MapChunk>* writer) override;

@@ -1,11 +1,11 @@
 #include "server/session.h"
 
+#include <glog/logging.h>
+
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <utility>
-
-#include <glog/logging.h>
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/escaping.h"
@@ -35,7 +35,8 @@ absl::Status WriteFile(const fs::path& path, const std::string& contents) {
   }
   std::error_code ec;
   fs::rename(tmp, path, ec);
-  if (ec) return absl::InternalError(absl::StrCat("cannot rename ", tmp.string(), ": ", ec.message()));
+  if (ec)
+    return absl::InternalError(absl::StrCat("cannot rename ", tmp.string(), ": ", ec.message()));
   return absl::OkStatus();
 }
 
@@ -49,7 +50,9 @@ absl::StatusOr<std::string> ReadFile(const fs::path& path) {
 
 std::string RecordText(const SessionRecord& r) {
   std::string out;
-  auto kv = [&out](const char* k, const std::string& v) { absl::StrAppend(&out, k, "=", absl::CEscape(v), "\n"); };
+  auto kv = [&out](const char* k, const std::string& v) {
+    absl::StrAppend(&out, k, "=", absl::CEscape(v), "\n");
+  };
   kv("id", r.id);
   kv("name", r.name);
   kv("owner", r.owner);
@@ -69,7 +72,8 @@ absl::Status ParseRecordText(const std::string& text, SessionRecord* r) {
     const size_t eq = line.find('=');
     if (eq == absl::string_view::npos) return absl::DataLossError("session record: malformed line");
     std::string value;
-    if (!absl::CUnescape(line.substr(eq + 1), &value)) return absl::DataLossError("session record: bad escape");
+    if (!absl::CUnescape(line.substr(eq + 1), &value))
+      return absl::DataLossError("session record: bad escape");
     kv[std::string(line.substr(0, eq))] = value;
   }
   auto int_field = [&kv](const char* k, int64_t* v) {
@@ -80,9 +84,12 @@ absl::Status ParseRecordText(const std::string& text, SessionRecord* r) {
   r->name = kv["name"];
   r->owner = kv["owner"];
   r->resume_token = kv["resume_token"];
-  if (r->id.empty() || r->resume_token.empty() || !int_field("created_unix_ms", &r->created_unix_ms) ||
-      !int_field("frames_processed", &r->frames_processed) || !int_field("frames_dropped", &r->frames_dropped) ||
-      !int_field("frames_rejected", &r->frames_rejected) || !int_field("last_frame_index", &r->last_frame_index) ||
+  if (r->id.empty() || r->resume_token.empty() ||
+      !int_field("created_unix_ms", &r->created_unix_ms) ||
+      !int_field("frames_processed", &r->frames_processed) ||
+      !int_field("frames_dropped", &r->frames_dropped) ||
+      !int_field("frames_rejected", &r->frames_rejected) ||
+      !int_field("last_frame_index", &r->last_frame_index) ||
       !int_field("last_timestamp_ns", &r->last_timestamp_ns)) {
     return absl::DataLossError("session record: missing fields");
   }
@@ -96,15 +103,21 @@ absl::Status ParseRecordText(const std::string& text, SessionRecord* r) {
 absl::StatusOr<SessionSetup> BuildSessionSetup(const pb::CreateSessionRequest& request,
                                                const SetupLimits& limits) {
   if (request.name().size() > 128) {
-    return absl::InvalidArgumentError(absl::StrCat("name is ", request.name().size(), " bytes; at most 128"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("name is ", request.name().size(), " bytes; at most 128"));
   }
   if (!request.has_config() || !request.config().has_calibration()) {
     return absl::InvalidArgumentError("config.calibration is required");
   }
   const pb::StereoCalibration& calib = request.config().calibration();
   if (calib.width() > limits.max_image_width || calib.height() > limits.max_image_height) {
-    return absl::InvalidArgumentError(absl::StrCat("calibration: image size ", calib.width(), "x", calib.height(),
-                                                   " exceeds the server limit ", limits.max_image_width, "x",
+    return absl::InvalidArgumentError(absl::StrCat("calibration: image size ",
+                                                   calib.width(),
+                                                   "x",
+                                                   calib.height(),
+                                                   " exceeds the server limit ",
+                                                   limits.max_image_width,
+                                                   "x",
                                                    limits.max_image_height));
   }
   SessionSetup setup;
@@ -147,25 +160,32 @@ absl::StatusOr<SessionSetup> BuildSessionSetup(const pb::CreateSessionRequest& r
   if (!classes.ok()) return classes.status();
   setup.config.classes = std::move(*classes);
   setup.config.options = limits.default_options;
-  if (absl::Status s = ApplyOptions(request.config().options(), &setup.config.options); !s.ok()) return s;
+  if (absl::Status s = ApplyOptions(request.config().options(), &setup.config.options); !s.ok())
+    return s;
 
   const pb::SessionPolicy& p = request.policy();
   if (p.queue_capacity() < 0) {
-    return absl::InvalidArgumentError(absl::StrCat("policy.queue_capacity ", p.queue_capacity(), " is negative"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("policy.queue_capacity ", p.queue_capacity(), " is negative"));
   }
   if (!(p.idle_timeout_s() >= 0)) {
     return absl::InvalidArgumentError("policy.idle_timeout_s must be >= 0");
   }
-  if (p.overflow() != pb::OVERFLOW_POLICY_UNSPECIFIED && p.overflow() != pb::OVERFLOW_POLICY_BLOCK &&
+  if (p.overflow() != pb::OVERFLOW_POLICY_UNSPECIFIED &&
+      p.overflow() != pb::OVERFLOW_POLICY_BLOCK &&
       p.overflow() != pb::OVERFLOW_POLICY_DROP_OLDEST) {
-    return absl::InvalidArgumentError(absl::StrCat("policy.overflow ", p.overflow(), " is unknown"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("policy.overflow ", p.overflow(), " is unknown"));
   }
-  setup.policy.set_queue_capacity(p.queue_capacity() == 0 ? limits.default_queue_capacity
-                                                          : std::min(p.queue_capacity(), limits.max_queue_capacity));
-  setup.policy.set_overflow(p.overflow() == pb::OVERFLOW_POLICY_DROP_OLDEST ? pb::OVERFLOW_POLICY_DROP_OLDEST
-                                                                            : pb::OVERFLOW_POLICY_BLOCK);
-  setup.policy.set_idle_timeout_s(p.idle_timeout_s() == 0 ? limits.default_idle_timeout_s
-                                                          : std::min(p.idle_timeout_s(), limits.max_idle_timeout_s));
+  setup.policy.set_queue_capacity(p.queue_capacity() == 0
+                                      ? limits.default_queue_capacity
+                                      : std::min(p.queue_capacity(), limits.max_queue_capacity));
+  setup.policy.set_overflow(p.overflow() == pb::OVERFLOW_POLICY_DROP_OLDEST
+                                ? pb::OVERFLOW_POLICY_DROP_OLDEST
+                                : pb::OVERFLOW_POLICY_BLOCK);
+  setup.policy.set_idle_timeout_s(p.idle_timeout_s() == 0
+                                      ? limits.default_idle_timeout_s
+                                      : std::min(p.idle_timeout_s(), limits.max_idle_timeout_s));
   return setup;
 }
 
@@ -178,7 +198,8 @@ absl::StatusOr<SessionRecord> ReadSessionRecord(const std::string& state_dir,
   const fs::path version = dir / std::string(absl::StripAsciiWhitespace(*current));
   SessionRecord record;
   absl::StatusOr<std::string> text = ReadFile(version / kRecordFile);
-  if (!text.ok()) return absl::DataLossError(absl::StrCat("session ", id, ": ", text.status().message()));
+  if (!text.ok())
+    return absl::DataLossError(absl::StrCat("session ", id, ": ", text.status().message()));
   if (absl::Status s = ParseRecordText(*text, &record); !s.ok()) {
     return absl::DataLossError(absl::StrCat("session ", id, ": ", s.message()));
   }
@@ -186,7 +207,8 @@ absl::StatusOr<SessionRecord> ReadSessionRecord(const std::string& state_dir,
   if (!request.ok() || !record.request.ParseFromString(*request)) {
     return absl::DataLossError(absl::StrCat("session ", id, ": cannot read its creation request"));
   }
-  if (record.id != id) return absl::DataLossError(absl::StrCat("session ", id, ": record names another id"));
+  if (record.id != id)
+    return absl::DataLossError(absl::StrCat("session ", id, ": record names another id"));
   *engine_path = (version / kEngineFile).string();
   return record;
 }
@@ -219,8 +241,8 @@ absl::StatusOr<FrameResult> Session::Process(const StereoFrame& frame, double* e
     absl::MutexLock lock(&mu_);
     processing_ = false;
     ++record_.frames_rejected;
-    return absl::InvalidArgumentError(absl::StrCat("timestamp_ns ", frame.timestamp_ns,
-                                                   " is not after the previous frame's ", last_ts));
+    return absl::InvalidArgumentError(absl::StrCat(
+        "timestamp_ns ", frame.timestamp_ns, " is not after the previous frame's ", last_ts));
   }
   Stopwatch watch;
   absl::StatusOr<FrameResult> result = system_->Process(frame);
@@ -261,13 +283,15 @@ absl::StatusOr<SessionRecord> Session::SaveTo(const std::string& state_dir) {
   const fs::path dir = fs::path(state_dir) / id_;
   std::error_code ec;
   fs::create_directories(dir, ec);
-  if (ec) return absl::InternalError(absl::StrCat("cannot create ", dir.string(), ": ", ec.message()));
+  if (ec)
+    return absl::InternalError(absl::StrCat("cannot create ", dir.string(), ": ", ec.message()));
   // A fresh version directory; CURRENT switches to it only when complete.
   const std::string version =
       absl::StrCat("v", record.frames_processed, "-", absl::ToUnixNanos(absl::Now()));
   const fs::path vdir = dir / version;
   fs::create_directories(vdir, ec);
-  if (ec) return absl::InternalError(absl::StrCat("cannot create ", vdir.string(), ": ", ec.message()));
+  if (ec)
+    return absl::InternalError(absl::StrCat("cannot create ", vdir.string(), ": ", ec.message()));
   absl::Status s = system_->Save((vdir / kEngineFile).string());
   if (s.ok()) s = WriteFile(vdir / kRequestFile, record.request.SerializeAsString());
   if (s.ok()) s = WriteFile(vdir / kRecordFile, RecordText(record));
@@ -304,11 +328,13 @@ absl::Status Session::Bind(StreamHandle* handle, absl::Duration wait) {
     // it is stuck writing to a client that does not read, cancel the call.
     bound_->taken_over = true;
     bound_->queue->Abort();
-    auto released = [this]() ABSL_SHARED_LOCKS_REQUIRED(mu_) { return bound_ == nullptr || closed_; };
+    auto released = [this]()
+                        ABSL_SHARED_LOCKS_REQUIRED(mu_) { return bound_ == nullptr || closed_; };
     if (!mu_.AwaitWithTimeout(absl::Condition(&released), absl::Seconds(2))) {
       bound_->context->TryCancel();
       if (!mu_.AwaitWithTimeout(absl::Condition(&released), wait)) {
-        return absl::UnavailableError(absl::StrCat("session ", id_, " is busy: the previous stream did not end"));
+        return absl::UnavailableError(
+            absl::StrCat("session ", id_, " is busy: the previous stream did not end"));
       }
     }
     if (closed_) return absl::FailedPreconditionError(absl::StrCat("session ", id_, " is closed"));
@@ -406,8 +432,9 @@ pb::SessionInfo Session::Info() const {
   pb::SessionInfo info;
   info.set_session_id(id_);
   info.set_name(record_.name);
-  info.set_state(closed_ ? pb::SESSION_STATE_CLOSED
-                         : (bound_ != nullptr ? pb::SESSION_STATE_STREAMING : pb::SESSION_STATE_IDLE));
+  info.set_state(closed_
+                     ? pb::SESSION_STATE_CLOSED
+                     : (bound_ != nullptr ? pb::SESSION_STATE_STREAMING : pb::SESSION_STATE_IDLE));
   ToProto(setup_.config.camera, info.mutable_calibration());
   info.set_frames_processed(record_.frames_processed);
   info.set_frames_dropped(record_.frames_dropped);

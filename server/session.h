@@ -3,6 +3,8 @@
 // stream currently bound to it (at most one).
 #pragma once
 
+#include <grpcpp/server_context.h>
+
 #include <atomic>
 #include <cstdint>
 #include <deque>
@@ -10,8 +12,6 @@
 #include <memory>
 #include <optional>
 #include <string>
-
-#include <grpcpp/server_context.h>
 
 #include "absl/base/thread_annotations.h"
 #include "absl/status/status.h"
@@ -73,7 +73,9 @@ class Session {
   const std::string& owner() const { return owner_; }
   const std::string& resume_token() const { return resume_token_; }
   const FrameFormat& format() const { return setup_.format; }
-  const StereoRectifier* rectifier() const { return setup_.rectifier ? &*setup_.rectifier : nullptr; }
+  const StereoRectifier* rectifier() const {
+    return setup_.rectifier ? &*setup_.rectifier : nullptr;
+  }
   const pb::SessionPolicy& policy() const { return setup_.policy; }
   const geometry::StereoCamera& camera() const { return setup_.config.camera; }
 

@@ -1,9 +1,9 @@
 #include "server/session_manager.h"
 
+#include <glog/logging.h>
+
 #include <filesystem>
 #include <utility>
-
-#include <glog/logging.h>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
@@ -54,7 +54,9 @@ pb::SessionInfo StoredInfo(const SessionRecord& r) {
 
 }  // namespace
 
-SessionManager::SessionManager(SessionManagerOptions options, SlamSystemFactory factory, Metrics* metrics)
+SessionManager::SessionManager(SessionManagerOptions options,
+                               SlamSystemFactory factory,
+                               Metrics* metrics)
     : options_(std::move(options)), factory_(std::move(factory)), metrics_(metrics) {
   std::random_device device;
   rng_.seed((static_cast<uint64_t>(device()) << 32) ^ device() ^
@@ -62,7 +64,8 @@ SessionManager::SessionManager(SessionManagerOptions options, SlamSystemFactory 
   if (!options_.state_dir.empty()) {
     std::error_code ec;
     fs::create_directories(options_.state_dir, ec);
-    if (ec) LOG(WARNING) << "cannot create state dir " << options_.state_dir << ": " << ec.message();
+    if (ec)
+      LOG(WARNING) << "cannot create state dir " << options_.state_dir << ": " << ec.message();
   }
   if (options_.housekeeping_period_s > 0) {
     housekeeping_ = std::thread([this] { HousekeepingLoop(); });
@@ -81,9 +84,10 @@ std::string SessionManager::NewId() {
   return absl::StrFormat("%016x%016x", rng_(), rng_());
 }
 
-absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(const pb::CreateSessionRequest& request,
-                                                                const std::string& owner) {
-  if (!accepting_) return absl::UnavailableError("server is shutting down; not accepting new sessions");
+absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(
+    const pb::CreateSessionRequest& request, const std::string& owner) {
+  if (!accepting_)
+    return absl::UnavailableError("server is shutting down; not accepting new sessions");
   absl::StatusOr<SessionSetup> setup = BuildSessionSetup(request, options_.limits);
   if (!setup.ok()) return setup.status();
   const std::string id = NewId();
@@ -91,7 +95,8 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(const pb::Create
   {
     absl::MutexLock lock(&mu_);
     if (static_cast<int>(sessions_.size() + loading_.size()) >= options_.max_sessions) {
-      return absl::ResourceExhaustedError(absl::StrCat("server has reached its limit of ", options_.max_sessions,
+      return absl::ResourceExhaustedError(absl::StrCat("server has reached its limit of ",
+                                                       options_.max_sessions,
                                                        " sessions; close one or try later"));
     }
     loading_.insert(id);
@@ -109,7 +114,8 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(const pb::Create
   record.resume_token = token;
   record.created_unix_ms = absl::ToUnixMillis(absl::Now());
   record.request = request;
-  auto session = std::make_shared<Session>(std::move(record), std::move(*setup), std::move(*system));
+  auto session =
+      std::make_shared<Session>(std::move(record), std::move(*setup), std::move(*system));
   {
     absl::MutexLock lock(&mu_);
     loading_.erase(id);
@@ -121,7 +127,8 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Create(const pb::Create
   return session;
 }
 
-absl::StatusOr<std::shared_ptr<Session>> SessionManager::Get(const std::string& id, const std::string& owner) {
+absl::StatusOr<std::shared_ptr<Session>> SessionManager::Get(const std::string& id,
+                                                             const std::string& owner) {
   if (id.empty()) return absl::InvalidArgumentError("session_id is empty");
   {
     absl::MutexLock lock(&mu_);
@@ -136,7 +143,8 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Get(const std::string& 
       return absl::FailedPreconditionError(absl::StrCat("session '", id, "' is closed"));
     }
     if (loading_.count(id)) {
-      return absl::UnavailableError(absl::StrCat("session '", id, "' is being loaded or saved; retry"));
+      return absl::UnavailableError(
+          absl::StrCat("session '", id, "' is being loaded or saved; retry"));
     }
   }
   if (!options_.state_dir.empty() && WellFormedId(id)) {
@@ -163,14 +171,16 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Resume(const std::strin
     if (it != sessions_.end()) {
       if (it->second->owner() != owner) return NotFound(id);
       if (!SameSecret(it->second->resume_token(), resume_token)) {
-        return absl::PermissionDeniedError(absl::StrCat("resume token does not match session '", id, "'"));
+        return absl::PermissionDeniedError(
+            absl::StrCat("resume token does not match session '", id, "'"));
       }
       it->second->Touch();
       return it->second;
     }
   }
   if (options_.state_dir.empty()) {
-    return absl::NotFoundError(absl::StrCat("session '", id, "' not found (the server has no --state-dir)"));
+    return absl::NotFoundError(
+        absl::StrCat("session '", id, "' not found (the server has no --state-dir)"));
   }
   if (!WellFormedId(id)) return NotFound(id);
   std::string engine_path;
@@ -181,7 +191,8 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Resume(const std::strin
   }
   if (record->owner != owner) return NotFound(id);
   if (!SameSecret(record->resume_token, resume_token)) {
-    return absl::PermissionDeniedError(absl::StrCat("resume token does not match session '", id, "'"));
+    return absl::PermissionDeniedError(
+        absl::StrCat("resume token does not match session '", id, "'"));
   }
   {
     absl::MutexLock lock(&mu_);
@@ -189,7 +200,8 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Resume(const std::strin
       return absl::UnavailableError(absl::StrCat("session '", id, "' is being loaded; retry"));
     }
     if (static_cast<int>(sessions_.size() + loading_.size()) >= options_.max_sessions) {
-      return absl::ResourceExhaustedError(absl::StrCat("server has reached its limit of ", options_.max_sessions,
+      return absl::ResourceExhaustedError(absl::StrCat("server has reached its limit of ",
+                                                       options_.max_sessions,
                                                        " sessions; close one or try later"));
     }
     loading_.insert(id);
@@ -201,20 +213,25 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Resume(const std::strin
   };
   absl::StatusOr<SessionSetup> setup = BuildSessionSetup(record->request, options_.limits);
   if (!setup.ok()) {
-    return fail(absl::FailedPreconditionError(
-        absl::StrCat("stored session '", id, "' no longer fits this server: ", setup.status().message())));
+    return fail(absl::FailedPreconditionError(absl::StrCat(
+        "stored session '", id, "' no longer fits this server: ", setup.status().message())));
   }
   absl::StatusOr<std::unique_ptr<SlamSystem>> system = factory_.load(engine_path);
   if (!system.ok()) {
-    return fail(absl::Status(system.status().code(),
-                             absl::StrCat("loading session '", id, "': ", system.status().message())));
+    return fail(
+        absl::Status(system.status().code(),
+                     absl::StrCat("loading session '", id, "': ", system.status().message())));
   }
   if ((*system)->frames_processed() != record->frames_processed) {
-    return fail(absl::DataLossError(absl::StrCat("stored session '", id, "': engine has ",
-                                                 (*system)->frames_processed(), " frames, record says ",
+    return fail(absl::DataLossError(absl::StrCat("stored session '",
+                                                 id,
+                                                 "': engine has ",
+                                                 (*system)->frames_processed(),
+                                                 " frames, record says ",
                                                  record->frames_processed)));
   }
-  auto session = std::make_shared<Session>(std::move(*record), std::move(*setup), std::move(*system));
+  auto session =
+      std::make_shared<Session>(std::move(*record), std::move(*setup), std::move(*system));
   session->MarkSaved();
   {
     absl::MutexLock lock(&mu_);
@@ -229,7 +246,8 @@ absl::StatusOr<std::shared_ptr<Session>> SessionManager::Resume(const std::strin
 }
 
 absl::Status SessionManager::SaveLocked(Session* session) {
-  if (options_.state_dir.empty()) return absl::FailedPreconditionError("the server has no --state-dir");
+  if (options_.state_dir.empty())
+    return absl::FailedPreconditionError("the server has no --state-dir");
   absl::StatusOr<SessionRecord> saved = session->SaveTo(options_.state_dir);
   if (!saved.ok()) {
     LOG(ERROR) << saved.status();
@@ -255,9 +273,11 @@ absl::StatusOr<pb::SessionInfo> SessionManager::Close(const std::string& id,
   absl::StatusOr<std::shared_ptr<Session>> session = Get(id, owner);
   if (!session.ok()) {
     // A session only on disk can be closed too (deleting it unless persist).
-    if (absl::IsFailedPrecondition(session.status()) && !options_.state_dir.empty() && WellFormedId(id)) {
+    if (absl::IsFailedPrecondition(session.status()) && !options_.state_dir.empty() &&
+        WellFormedId(id)) {
       std::string engine_path;
-      absl::StatusOr<SessionRecord> record = ReadSessionRecord(options_.state_dir, id, &engine_path);
+      absl::StatusOr<SessionRecord> record =
+          ReadSessionRecord(options_.state_dir, id, &engine_path);
       if (record.ok() && record->owner == owner) {
         pb::SessionInfo info = StoredInfo(*record);
         if (persist) {
@@ -293,11 +313,13 @@ absl::StatusOr<pb::SessionInfo> SessionManager::Close(const std::string& id,
   return (*session)->Info();
 }
 
-absl::StatusOr<SessionRecord> SessionManager::Persist(const std::string& id, const std::string& owner) {
+absl::StatusOr<SessionRecord> SessionManager::Persist(const std::string& id,
+                                                      const std::string& owner) {
   absl::StatusOr<std::shared_ptr<Session>> session = Get(id, owner);
   if (!session.ok()) return session.status();
   if (options_.state_dir.empty()) {
-    return absl::FailedPreconditionError("cannot persist: the server was started without --state-dir");
+    return absl::FailedPreconditionError(
+        "cannot persist: the server was started without --state-dir");
   }
   if (absl::Status s = SaveLocked(session->get()); !s.ok()) return s;
   return (*session)->Record();
@@ -321,7 +343,8 @@ std::vector<pb::SessionInfo> SessionManager::List(const std::string& owner) {
       const std::string id = e.path().filename().string();
       if (!e.is_directory() || skip.count(id) || !WellFormedId(id)) continue;
       std::string engine_path;
-      absl::StatusOr<SessionRecord> record = ReadSessionRecord(options_.state_dir, id, &engine_path);
+      absl::StatusOr<SessionRecord> record =
+          ReadSessionRecord(options_.state_dir, id, &engine_path);
       if (record.ok() && record->owner == owner) out.push_back(StoredInfo(*record));
     }
   }
@@ -361,7 +384,8 @@ void SessionManager::DrainStreams(absl::Time deadline) {
   for (auto& s : sessions) s->CancelStream();
   const absl::Time unbind_deadline = std::max(deadline, absl::Now()) + absl::Seconds(2);
   for (auto& s : sessions) {
-    if (!s->WaitUnbound(unbind_deadline)) LOG(WARNING) << "session " << s->id() << ": stream did not end";
+    if (!s->WaitUnbound(unbind_deadline))
+      LOG(WARNING) << "session " << s->id() << ": stream did not end";
   }
 }
 
@@ -407,8 +431,8 @@ void SessionManager::Housekeeping(absl::Time now) {
         }
       }
       if (metrics_) metrics_->SessionExpired();
-      LOG(INFO) << "session " << s->id() << " idle for " << idle_s << " s: "
-                << (saved ? "persisted and unloaded" : "closed");
+      LOG(INFO) << "session " << s->id() << " idle for " << idle_s
+                << " s: " << (saved ? "persisted and unloaded" : "closed");
       continue;
     }
     if (!options_.state_dir.empty() && options_.persist_interval_s > 0 && s->NeedsSave()) {
@@ -419,7 +443,8 @@ void SessionManager::Housekeeping(absl::Time now) {
         last = it == last_save_.end() ? absl::InfinitePast() : it->second;
         if (it == last_save_.end()) last_save_[s->id()] = now;  // first change: wait one interval
       }
-      if (last != absl::InfinitePast() && absl::ToDoubleSeconds(now - last) >= options_.persist_interval_s) {
+      if (last != absl::InfinitePast() &&
+          absl::ToDoubleSeconds(now - last) >= options_.persist_interval_s) {
         SaveLocked(s.get()).IgnoreError();
       }
     }

@@ -24,10 +24,10 @@ namespace twist::server {
 
 struct SessionManagerOptions {
   SetupLimits limits;
-  int max_sessions = 16;                 // loaded sessions at once
-  std::string state_dir;                 // empty: no persistence
-  double persist_interval_s = 60;        // periodic save of changed sessions; <= 0 off
-  double housekeeping_period_s = 1.0;    // how often expiry/persistence run
+  int max_sessions = 16;               // loaded sessions at once
+  std::string state_dir;               // empty: no persistence
+  double persist_interval_s = 60;      // periodic save of changed sessions; <= 0 off
+  double housekeeping_period_s = 1.0;  // how often expiry/persistence run
   absl::Duration takeover_wait = absl::Seconds(10);
 };
 

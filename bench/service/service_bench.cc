@@ -9,6 +9,7 @@
 // into a temporary directory.
 //
 //   service_bench [--frames N] [--scale S] [--json FILE]
+#include <glog/logging.h>
 #include <malloc.h>
 #include <unistd.h>
 
@@ -22,8 +23,6 @@
 #include <iostream>
 #include <mutex>
 #include <thread>
-
-#include <glog/logging.h>
 
 #include "client/lib/frame_encoding.h"
 #include "client/lib/slam_client.h"
@@ -70,7 +69,8 @@ struct Data {
 
 Data Load(int num_frames, double scale) {
   Data d;
-  absl::StatusOr<twist::sim::Scenario> scenario = twist::sim::MakeScenario("driving", 1, num_frames);
+  absl::StatusOr<twist::sim::Scenario> scenario =
+      twist::sim::MakeScenario("driving", 1, num_frames);
   if (!scenario.ok()) {
     std::cerr << scenario.status() << "\n";
     std::exit(1);
@@ -148,14 +148,20 @@ int main(int argc, char** argv) {
   double scale = 0.5;
   std::string json_path;
   for (int i = 1; i + 1 < argc; i += 2) {
-    if (!std::strcmp(argv[i], "--frames")) num_frames = std::atoi(argv[i + 1]);
-    else if (!std::strcmp(argv[i], "--scale")) scale = std::atof(argv[i + 1]);
-    else if (!std::strcmp(argv[i], "--json")) json_path = argv[i + 1];
+    if (!std::strcmp(argv[i], "--frames"))
+      num_frames = std::atoi(argv[i + 1]);
+    else if (!std::strcmp(argv[i], "--scale"))
+      scale = std::atof(argv[i + 1]);
+    else if (!std::strcmp(argv[i], "--json"))
+      json_path = argv[i + 1];
   }
   google::InitGoogleLogging(argv[0]);
   FLAGS_minloglevel = 1;
   const Data data = Load(num_frames, scale);
-  std::fprintf(stderr, "frames: %zu of %dx%d\n", data.frames.size(), data.config.camera.width,
+  std::fprintf(stderr,
+               "frames: %zu of %dx%d\n",
+               data.frames.size(),
+               data.config.camera.width,
                data.config.camera.height);
 
   // 1. Embedded latency.
@@ -186,15 +192,19 @@ int main(int argc, char** argv) {
     std::mutex mu;
     std::condition_variable cv;
     int answered = 0;
-    client->OpenStream(created->session_id(), created->resume_token(), [&](const pb::StreamResponse& r) {
-      if (!r.has_update() && !r.has_error()) return;
-      std::lock_guard<std::mutex> lock(mu);
-      for (const auto& t : r.update().timings()) {
-        if (t.stage() == "engine") grpc_engine_ms.push_back(t.ms());
-      }
-      ++answered;
-      cv.notify_all();
-    }).IgnoreError();
+    client
+        ->OpenStream(created->session_id(),
+                     created->resume_token(),
+                     [&](const pb::StreamResponse& r) {
+                       if (!r.has_update() && !r.has_error()) return;
+                       std::lock_guard<std::mutex> lock(mu);
+                       for (const auto& t : r.update().timings()) {
+                         if (t.stage() == "engine") grpc_engine_ms.push_back(t.ms());
+                       }
+                       ++answered;
+                       cv.notify_all();
+                     })
+        .IgnoreError();
     for (size_t i = 0; i < data.wire.size(); ++i) {
       const auto t0 = Clock::now();
       client->Send(data.wire[i]).IgnoreError();
@@ -259,8 +269,20 @@ int main(int argc, char** argv) {
   w.Key("frames").Int(static_cast<int64_t>(data.frames.size()));
   w.Key("width").Int(data.config.camera.width).Key("height").Int(data.config.camera.height);
   w.Key("encoding").String("raw");
-  w.Key("embedded_latency_ms").BeginObject().Key("median").Number(emb).Key("p95").Number(P95(embedded_ms)).EndObject();
-  w.Key("grpc_latency_ms").BeginObject().Key("median").Number(grpc).Key("p95").Number(P95(grpc_ms)).EndObject();
+  w.Key("embedded_latency_ms")
+      .BeginObject()
+      .Key("median")
+      .Number(emb)
+      .Key("p95")
+      .Number(P95(embedded_ms))
+      .EndObject();
+  w.Key("grpc_latency_ms")
+      .BeginObject()
+      .Key("median")
+      .Number(grpc)
+      .Key("p95")
+      .Number(P95(grpc_ms))
+      .EndObject();
   w.Key("grpc_over_embedded_median_ratio").Number(emb > 0 ? grpc / emb : 0);
   w.Key("per_frame_overhead_ms").BeginObject().Key("median").Number(Median(overhead_ms));
   w.Key("p95").Number(P95(overhead_ms)).EndObject();

@@ -1,8 +1,7 @@
 #include "client/lib/frame_encoding.h"
 
-#include <vector>
-
 #include <opencv2/imgcodecs.hpp>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 
@@ -30,7 +29,8 @@ absl::Status EncodeImage(const cv::Mat& image, pb::ImageEncoding encoding, pb::I
         format = pb::PIXEL_FORMAT_FLOAT32X2;
         break;
       default:
-        return absl::InvalidArgumentError(absl::StrCat("no RAW pixel format for OpenCV type ", image.type()));
+        return absl::InvalidArgumentError(
+            absl::StrCat("no RAW pixel format for OpenCV type ", image.type()));
     }
     out->set_encoding(pb::IMAGE_ENCODING_RAW);
     out->set_width(image.cols);
@@ -44,8 +44,10 @@ absl::Status EncodeImage(const cv::Mat& image, pb::ImageEncoding encoding, pb::I
     return absl::OkStatus();
   }
   const bool png = encoding == pb::IMAGE_ENCODING_PNG;
-  if (!png && encoding != pb::IMAGE_ENCODING_JPEG) return absl::InvalidArgumentError("unknown image encoding");
-  const bool ok_type = image.type() == CV_8UC1 || image.type() == CV_8UC3 || (png && image.type() == CV_16UC1);
+  if (!png && encoding != pb::IMAGE_ENCODING_JPEG)
+    return absl::InvalidArgumentError("unknown image encoding");
+  const bool ok_type =
+      image.type() == CV_8UC1 || image.type() == CV_8UC3 || (png && image.type() == CV_16UC1);
   if (!ok_type) {
     return absl::InvalidArgumentError(
         absl::StrCat("cannot encode OpenCV type ", image.type(), " as ", png ? "PNG" : "JPEG"));
@@ -69,12 +71,17 @@ absl::Status MakeFrame(const FrameImages& images, pb::ImageEncoding encoding, pb
   if (absl::Status s = EncodeImage(images.right, encoding, out->mutable_right()); !s.ok()) return s;
   if (!images.panoptic.empty()) {
     const pb::ImageEncoding mask_encoding =
-        (encoding == pb::IMAGE_ENCODING_RAW || images.panoptic.type() != CV_16UC1) ? pb::IMAGE_ENCODING_RAW
-                                                                                   : pb::IMAGE_ENCODING_PNG;
-    if (absl::Status s = EncodeImage(images.panoptic, mask_encoding, out->mutable_panoptic()); !s.ok()) return s;
+        (encoding == pb::IMAGE_ENCODING_RAW || images.panoptic.type() != CV_16UC1)
+            ? pb::IMAGE_ENCODING_RAW
+            : pb::IMAGE_ENCODING_PNG;
+    if (absl::Status s = EncodeImage(images.panoptic, mask_encoding, out->mutable_panoptic());
+        !s.ok())
+      return s;
   }
   if (!images.flow.empty()) {
-    if (absl::Status s = EncodeImage(images.flow, pb::IMAGE_ENCODING_RAW, out->mutable_flow()); !s.ok()) return s;
+    if (absl::Status s = EncodeImage(images.flow, pb::IMAGE_ENCODING_RAW, out->mutable_flow());
+        !s.ok())
+      return s;
   }
   return absl::OkStatus();
 }

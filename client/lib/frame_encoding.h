@@ -2,7 +2,6 @@
 #pragma once
 
 #include <cstdint>
-
 #include <opencv2/core.hpp>
 
 #include "absl/status/status.h"
@@ -22,7 +21,7 @@ absl::Status EncodeImage(const cv::Mat& image, pb::ImageEncoding encoding, pb::I
 struct FrameImages {
   int64_t index = 0;
   int64_t timestamp_ns = 0;
-  cv::Mat left;      // CV_8UC1 or CV_8UC3
+  cv::Mat left;  // CV_8UC1 or CV_8UC3
   cv::Mat right;
   cv::Mat panoptic;  // optional, CV_16UC1 or CV_32SC1
   cv::Mat flow;      // optional, CV_32FC2

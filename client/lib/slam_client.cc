@@ -18,8 +18,9 @@ constexpr int64_t kNoTimestamp = std::numeric_limits<int64_t>::min();
 absl::Status ToAbslStatus(const grpc::Status& status) {
   if (status.ok()) return absl::OkStatus();
   const int code = static_cast<int>(status.error_code());
-  return absl::Status(code >= 0 && code <= 16 ? static_cast<absl::StatusCode>(code) : absl::StatusCode::kUnknown,
-                      status.error_message());
+  return absl::Status(
+      code >= 0 && code <= 16 ? static_cast<absl::StatusCode>(code) : absl::StatusCode::kUnknown,
+      status.error_message());
 }
 
 absl::StatusOr<std::unique_ptr<SlamClient>> SlamClient::Connect(const ClientOptions& options) {
@@ -37,7 +38,8 @@ absl::StatusOr<std::unique_ptr<SlamClient>> SlamClient::Connect(const ClientOpti
   args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, 1000);
   if (!options.tls_ca_file.empty()) {
     std::ifstream in(options.tls_ca_file);
-    if (!in) return absl::NotFoundError(absl::StrCat("cannot read TLS CA file ", options.tls_ca_file));
+    if (!in)
+      return absl::NotFoundError(absl::StrCat("cannot read TLS CA file ", options.tls_ca_file));
     std::stringstream roots;
     roots << in.rdbuf();
     grpc::SslCredentialsOptions ssl;
@@ -61,8 +63,9 @@ void SlamClient::Prepare(grpc::ClientContext* context, bool unary) const {
   if (!options_.token.empty()) context->AddMetadata("authorization", "Bearer " + options_.token);
   context->set_wait_for_ready(true);
   if (unary) {
-    context->set_deadline(std::chrono::system_clock::now() +
-                          std::chrono::milliseconds(static_cast<int64_t>(options_.rpc_timeout_s * 1000)));
+    context->set_deadline(
+        std::chrono::system_clock::now() +
+        std::chrono::milliseconds(static_cast<int64_t>(options_.rpc_timeout_s * 1000)));
   }
 }
 
@@ -91,7 +94,8 @@ absl::StatusOr<pb::GetServerInfoResponse> SlamClient::GetServerInfo() {
   return response;
 }
 
-absl::StatusOr<pb::CreateSessionResponse> SlamClient::CreateSession(const pb::CreateSessionRequest& request) {
+absl::StatusOr<pb::CreateSessionResponse> SlamClient::CreateSession(
+    const pb::CreateSessionRequest& request) {
   grpc::ClientContext context;
   Prepare(&context, true);
   pb::CreateSessionResponse response;
@@ -100,8 +104,8 @@ absl::StatusOr<pb::CreateSessionResponse> SlamClient::CreateSession(const pb::Cr
   return response;
 }
 
-absl::StatusOr<pb::ResumeSessionResponse> SlamClient::ResumeSession(const std::string& session_id,
-                                                                    const std::string& resume_token) {
+absl::StatusOr<pb::ResumeSessionResponse> SlamClient::ResumeSession(
+    const std::string& session_id, const std::string& resume_token) {
   grpc::ClientContext context;
   Prepare(&context, true);
   pb::ResumeSessionRequest request;
@@ -113,7 +117,8 @@ absl::StatusOr<pb::ResumeSessionResponse> SlamClient::ResumeSession(const std::s
   return response;
 }
 
-absl::StatusOr<pb::CloseSessionResponse> SlamClient::CloseSession(const std::string& session_id, bool persist) {
+absl::StatusOr<pb::CloseSessionResponse> SlamClient::CloseSession(const std::string& session_id,
+                                                                  bool persist) {
   grpc::ClientContext context;
   Prepare(&context, true);
   pb::CloseSessionRequest request;
@@ -134,7 +139,8 @@ absl::StatusOr<std::vector<pb::SessionInfo>> SlamClient::ListSessions() {
   return std::vector<pb::SessionInfo>(response.sessions().begin(), response.sessions().end());
 }
 
-absl::StatusOr<pb::PersistSessionResponse> SlamClient::PersistSession(const std::string& session_id) {
+absl::StatusOr<pb::PersistSessionResponse> SlamClient::PersistSession(
+    const std::string& session_id) {
   grpc::ClientContext context;
   Prepare(&context, true);
   pb::PersistSessionRequest request;
@@ -163,7 +169,8 @@ absl::StatusOr<std::vector<pb::MapChunk>> SlamClient::GetMap(const pb::GetMapReq
   while (reader->Read(&chunk)) chunks.push_back(chunk);
   grpc::Status s = reader->Finish();
   if (!s.ok()) return ToAbslStatus(s);
-  if (chunks.empty() || !chunks.back().last()) return absl::DataLossError("map stream ended before its last chunk");
+  if (chunks.empty() || !chunks.back().last())
+    return absl::DataLossError("map stream ended before its last chunk");
   return chunks;
 }
 
@@ -195,7 +202,8 @@ absl::Status SlamClient::StartStream(bool replay) {
   if (replay) {
     std::lock_guard<std::mutex> lock(mu_);
     bind.mutable_bind()->set_replay(true);
-    bind.mutable_bind()->set_replay_after_timestamp_ns(have_answer_ ? last_answered_ts_ : kNoTimestamp);
+    bind.mutable_bind()->set_replay_after_timestamp_ns(have_answer_ ? last_answered_ts_
+                                                                    : kNoTimestamp);
   }
   pb::StreamResponse first;
   const bool ok = stream_->Write(bind) && stream_->Read(&first);
@@ -203,7 +211,8 @@ absl::Status SlamClient::StartStream(bool replay) {
     grpc::Status s = stream_->Finish();
     stream_.reset();
     context_.reset();
-    if (s.ok()) return absl::InternalError("server answered the bind with something else than `bound`");
+    if (s.ok())
+      return absl::InternalError("server answered the bind with something else than `bound`");
     return ToAbslStatus(s);
   }
   {
@@ -212,10 +221,13 @@ absl::Status SlamClient::StartStream(bool replay) {
     replay_left_ = first.bound().replay_count();
     reader_done_ = false;
     if (replay_left_ == 0 && replay) {
-      const int64_t processed_up_to = bound_.frames_processed() > 0 ? bound_.last_timestamp_ns() : kNoTimestamp;
-      unacked_.erase(std::remove_if(unacked_.begin(), unacked_.end(),
-                                    [&](const Pending& p) { return p.timestamp_ns <= processed_up_to; }),
-                     unacked_.end());
+      const int64_t processed_up_to =
+          bound_.frames_processed() > 0 ? bound_.last_timestamp_ns() : kNoTimestamp;
+      unacked_.erase(
+          std::remove_if(unacked_.begin(),
+                         unacked_.end(),
+                         [&](const Pending& p) { return p.timestamp_ns <= processed_up_to; }),
+          unacked_.end());
     }
   }
   if (callback_) callback_(first);
@@ -223,7 +235,8 @@ absl::Status SlamClient::StartStream(bool replay) {
   return absl::OkStatus();
 }
 
-void SlamClient::ReaderLoop(grpc::ClientReaderWriter<pb::StreamRequest, pb::StreamResponse>* stream) {
+void SlamClient::ReaderLoop(
+    grpc::ClientReaderWriter<pb::StreamRequest, pb::StreamResponse>* stream) {
   pb::StreamResponse response;
   auto ack = [this](int64_t index, int64_t timestamp_ns) {
     // Answers come in send order: everything up to the answered frame is done.
@@ -237,14 +250,16 @@ void SlamClient::ReaderLoop(grpc::ClientReaderWriter<pb::StreamRequest, pb::Stre
       std::lock_guard<std::mutex> lock(mu_);
       if (response.has_update()) {
         ack(response.update().index(), response.update().timestamp_ns());
-        last_answered_ts_ = have_answer_ ? std::max(last_answered_ts_, response.update().timestamp_ns())
-                                         : response.update().timestamp_ns();
+        last_answered_ts_ = have_answer_
+                                ? std::max(last_answered_ts_, response.update().timestamp_ns())
+                                : response.update().timestamp_ns();
         have_answer_ = true;
         if (replay_left_ > 0 && --replay_left_ == 0) {
           // Replay complete: frames the server processed before the bind
           // but whose updates were not kept are done too.
           const int64_t up_to = bound_.last_timestamp_ns();
-          unacked_.erase(std::remove_if(unacked_.begin(), unacked_.end(),
+          unacked_.erase(std::remove_if(unacked_.begin(),
+                                        unacked_.end(),
                                         [&](const Pending& p) { return p.timestamp_ns <= up_to; }),
                          unacked_.end());
         }
@@ -256,7 +271,8 @@ void SlamClient::ReaderLoop(grpc::ClientReaderWriter<pb::StreamRequest, pb::Stre
         }
       } else if (response.has_dropped()) {
         for (int64_t index : response.dropped().indices()) {
-          auto it = std::find_if(unacked_.begin(), unacked_.end(), [&](const Pending& p) { return p.index == index; });
+          auto it = std::find_if(
+              unacked_.begin(), unacked_.end(), [&](const Pending& p) { return p.index == index; });
           if (it != unacked_.end()) unacked_.erase(it);
         }
       }
@@ -273,7 +289,8 @@ void SlamClient::ReaderLoop(grpc::ClientReaderWriter<pb::StreamRequest, pb::Stre
 
 grpc::Status SlamClient::FinishStream() {
   if (reader_.joinable()) reader_.join();
-  grpc::Status s = stream_ ? stream_->Finish() : grpc::Status(grpc::StatusCode::FAILED_PRECONDITION, "no stream");
+  grpc::Status s = stream_ ? stream_->Finish()
+                           : grpc::Status(grpc::StatusCode::FAILED_PRECONDITION, "no stream");
   stream_.reset();
   context_.reset();
   std::lock_guard<std::mutex> lock(mu_);
@@ -286,7 +303,8 @@ grpc::Status SlamClient::FinishStream() {
 }
 
 absl::Status SlamClient::Send(const pb::Frame& frame) {
-  if (session_id_.empty()) return absl::FailedPreconditionError("no stream open; call OpenStream first");
+  if (session_id_.empty())
+    return absl::FailedPreconditionError("no stream open; call OpenStream first");
   Pending pending;
   pending.index = frame.index();
   pending.timestamp_ns = frame.timestamp_ns();
@@ -301,7 +319,8 @@ absl::Status SlamClient::Send(const pb::Frame& frame) {
   if (!broken && stream_->Write(pending.request)) return absl::OkStatus();
   // The stream broke: find out why and continue on a new one if we can (the
   // frame is in unacked_ and is resent).
-  grpc::Status status = stream_ ? FinishStream() : grpc::Status(grpc::StatusCode::UNAVAILABLE, "no stream");
+  grpc::Status status =
+      stream_ ? FinishStream() : grpc::Status(grpc::StatusCode::UNAVAILABLE, "no stream");
   if (status.ok()) status = grpc::Status(grpc::StatusCode::UNAVAILABLE, "server ended the stream");
   return Reconnect(status);
 }
@@ -336,7 +355,8 @@ absl::Status SlamClient::Reconnect(const grpc::Status& cause) {
     std::vector<pb::StreamRequest> resend;
     {
       std::lock_guard<std::mutex> lock(mu_);
-      const int64_t up_to = bound_.frames_processed() > 0 ? bound_.last_timestamp_ns() : kNoTimestamp;
+      const int64_t up_to =
+          bound_.frames_processed() > 0 ? bound_.last_timestamp_ns() : kNoTimestamp;
       for (const Pending& p : unacked_) {
         if (p.timestamp_ns > up_to) resend.push_back(p.request);
       }
@@ -353,8 +373,12 @@ absl::Status SlamClient::Reconnect(const grpc::Status& cause) {
     last = FinishStream();
     if (!Retryable(last)) return ToAbslStatus(last);
   }
-  return absl::UnavailableError(absl::StrCat("could not resume session '", session_id_, "' after ",
-                                             options_.max_reconnect_attempts, " attempts: ", last.error_message()));
+  return absl::UnavailableError(absl::StrCat("could not resume session '",
+                                             session_id_,
+                                             "' after ",
+                                             options_.max_reconnect_attempts,
+                                             " attempts: ",
+                                             last.error_message()));
 }
 
 absl::Status SlamClient::CloseStream() {
@@ -377,7 +401,8 @@ absl::Status SlamClient::CloseStream() {
       break;
     }
     if (status.ok()) {
-      result = absl::DataLossError(absl::StrCat("stream ended with ", left, " frame(s) unanswered"));
+      result =
+          absl::DataLossError(absl::StrCat("stream ended with ", left, " frame(s) unanswered"));
       break;
     }
     if (absl::Status s = Reconnect(status); !s.ok()) {

@@ -13,6 +13,8 @@
 //   absl::Status s = (*client)->CloseStream();  // every frame answered
 #pragma once
 
+#include <grpcpp/grpcpp.h>
+
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
@@ -23,8 +25,6 @@
 #include <thread>
 #include <vector>
 
-#include <grpcpp/grpcpp.h>
-
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "twistslam/v1/slam_service.grpc.pb.h"
@@ -34,12 +34,12 @@ namespace twist::client {
 namespace pb = ::twistslam::v1;
 
 struct ClientOptions {
-  std::string address;             // HOST:PORT
-  std::string token;               // bearer token; empty = none
-  std::string tls_ca_file;         // PEM root certificates; enables TLS
-  std::string tls_server_name;     // expected certificate name (default: host)
+  std::string address;                   // HOST:PORT
+  std::string token;                     // bearer token; empty = none
+  std::string tls_ca_file;               // PEM root certificates; enables TLS
+  std::string tls_server_name;           // expected certificate name (default: host)
   int64_t max_message_bytes = 64 << 20;  // receive/send limit (server's is 64 MiB)
-  double rpc_timeout_s = 60.0;     // deadline of unary calls
+  double rpc_timeout_s = 60.0;           // deadline of unary calls
   // Reconnection of a broken stream: attempts and first back-off (doubles,
   // capped at 2 s). While the server restarts, calls wait for it to be ready.
   int max_reconnect_attempts = 20;
@@ -66,7 +66,8 @@ class SlamClient {
   absl::StatusOr<pb::CreateSessionResponse> CreateSession(const pb::CreateSessionRequest& request);
   absl::StatusOr<pb::ResumeSessionResponse> ResumeSession(const std::string& session_id,
                                                           const std::string& resume_token);
-  absl::StatusOr<pb::CloseSessionResponse> CloseSession(const std::string& session_id, bool persist);
+  absl::StatusOr<pb::CloseSessionResponse> CloseSession(const std::string& session_id,
+                                                        bool persist);
   absl::StatusOr<std::vector<pb::SessionInfo>> ListSessions();
   absl::StatusOr<pb::PersistSessionResponse> PersistSession(const std::string& session_id);
   absl::StatusOr<std::string> GetMetrics();
@@ -128,14 +129,14 @@ class SlamClient {
 
   mutable std::mutex mu_;
   std::condition_variable cv_;
-  std::deque<Pending> unacked_;               // guarded by mu_
-  bool reader_done_ = true;                   // guarded by mu_
-  bool have_answer_ = false;                  // guarded by mu_
-  int64_t last_answered_ts_ = 0;              // guarded by mu_
-  pb::SessionInfo bound_;                     // guarded by mu_
-  int replay_left_ = 0;                       // guarded by mu_
-  int reconnects_ = 0;                        // guarded by mu_
-  std::string aborted_message_;               // guarded by mu_: server said "taken over"
+  std::deque<Pending> unacked_;   // guarded by mu_
+  bool reader_done_ = true;       // guarded by mu_
+  bool have_answer_ = false;      // guarded by mu_
+  int64_t last_answered_ts_ = 0;  // guarded by mu_
+  pb::SessionInfo bound_;         // guarded by mu_
+  int replay_left_ = 0;           // guarded by mu_
+  int reconnects_ = 0;            // guarded by mu_
+  std::string aborted_message_;   // guarded by mu_: server said "taken over"
 };
 
 }  // namespace twist::client

@@ -5,7 +5,8 @@ namespace {
 
 geometry::Vector6d TwistFromProto(const pb::Twist& t) {
   geometry::Vector6d xi;
-  xi << t.linear().x(), t.linear().y(), t.linear().z(), t.angular().x(), t.angular().y(), t.angular().z();
+  xi << t.linear().x(), t.linear().y(), t.linear().z(), t.angular().x(), t.angular().y(),
+      t.angular().z();
   return xi;
 }
 
@@ -18,10 +19,12 @@ std::string JointName(pb::JointType type) {
 }  // namespace
 
 geometry::SE3d PoseFromProto(const pb::Pose& pose) {
-  Eigen::Quaterniond q(pose.rotation().w(), pose.rotation().x(), pose.rotation().y(), pose.rotation().z());
+  Eigen::Quaterniond q(
+      pose.rotation().w(), pose.rotation().x(), pose.rotation().y(), pose.rotation().z());
   if (q.norm() < 1e-12) q = Eigen::Quaterniond::Identity();
-  return geometry::SE3d(q.normalized(),
-                        Eigen::Vector3d(pose.translation().x(), pose.translation().y(), pose.translation().z()));
+  return geometry::SE3d(
+      q.normalized(),
+      Eigen::Vector3d(pose.translation().x(), pose.translation().y(), pose.translation().z()));
 }
 
 pb::SessionConfig SessionConfigToProto(const SessionConfig& config) {
@@ -124,7 +127,8 @@ FrameResult FrameResultFromProto(const pb::FrameUpdate& u) {
     ev.class_id = e.class_id();
     ev.instance_id = e.instance_id();
     ev.is_dynamic = e.is_dynamic();
-    if (e.has_plane()) ev.plane = Eigen::Vector4d(e.plane().a(), e.plane().b(), e.plane().c(), e.plane().d());
+    if (e.has_plane())
+      ev.plane = Eigen::Vector4d(e.plane().a(), e.plane().b(), e.plane().c(), e.plane().d());
     r.cluster_events.push_back(ev);
   }
   for (const pb::StageTiming& t : u.timings()) r.timings.push_back({t.stage(), t.ms()});
@@ -150,7 +154,8 @@ MapSnapshot MapFromChunks(const std::vector<pb::MapChunk>& chunks) {
       cluster.class_id = c.class_id();
       cluster.instance_id = c.instance_id();
       cluster.is_dynamic = c.is_dynamic();
-      if (c.has_plane()) cluster.plane = Eigen::Vector4d(c.plane().a(), c.plane().b(), c.plane().c(), c.plane().d());
+      if (c.has_plane())
+        cluster.plane = Eigen::Vector4d(c.plane().a(), c.plane().b(), c.plane().c(), c.plane().d());
       for (const pb::TimedPose& t : c.trajectory()) {
         cluster.trajectory.emplace_back(t.timestamp_ns(), PoseFromProto(t.world_from_object()));
       }

@@ -2,6 +2,8 @@
 // stdout line, SIGTERM) and `twistslam run` over it and embedded (same
 // camera poses, every output file), `twistslam map`, and one-line errors.
 #include <fcntl.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -10,9 +12,6 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
-
-#include <gmock/gmock.h>
-#include <gtest/gtest.h>
 
 #include "slam/sim/scenarios.h"
 #include "slam/sim/writer.h"
@@ -118,7 +117,8 @@ TEST(Cli, ServerRunAndMapEndToEnd) {
   const std::string state = ::testing::TempDir() + "/twist_cli_state";
   fs::remove_all(state);
   Server server({"--state-dir", state});
-  ASSERT_THAT(server.first_line(), ::testing::MatchesRegex("listening on 127\\.0\\.0\\.1:[0-9]+\n"));
+  ASSERT_THAT(server.first_line(),
+              ::testing::MatchesRegex("listening on 127\\.0\\.0\\.1:[0-9]+\n"));
   const std::string out_remote = ::testing::TempDir() + "/twist_cli_remote";
   const std::string out_local = ::testing::TempDir() + "/twist_cli_local";
   fs::remove_all(out_remote);
@@ -126,14 +126,19 @@ TEST(Cli, ServerRunAndMapEndToEnd) {
   const std::string common = std::string(TWISTSLAM_BIN) + " run --dataset " + dataset +
                              " --format kitti-tracking --seq 0000 ";
   std::string err;
-  ASSERT_EQ(Shell(common + "--out " + out_remote + " --server " + server.address() + " --keep-session > " +
-                    ::testing::TempDir() + "/twist_cli_stdout.txt",
-                &err),
+  ASSERT_EQ(Shell(common + "--out " + out_remote + " --server " + server.address() +
+                      " --keep-session > " + ::testing::TempDir() + "/twist_cli_stdout.txt",
+                  &err),
             0)
       << err;
   EXPECT_THAT(err, HasSubstr("frames/s"));
   ASSERT_EQ(Shell(common + "--out " + out_local + " --embedded", &err), 0) << err;
-  for (const char* file : {"camera.txt", "camera_tum.txt", "objects.txt", "summary.json", "updates.jsonl", "map.ply"}) {
+  for (const char* file : {"camera.txt",
+                           "camera_tum.txt",
+                           "objects.txt",
+                           "summary.json",
+                           "updates.jsonl",
+                           "map.ply"}) {
     EXPECT_TRUE(fs::exists(out_remote + "/" + file)) << file;
     EXPECT_TRUE(fs::exists(out_local + "/" + file)) << file;
   }
@@ -150,15 +155,15 @@ TEST(Cli, ServerRunAndMapEndToEnd) {
   kept >> word >> session;
   ASSERT_EQ(word, "session");
   const std::string ply = ::testing::TempDir() + "/twist_cli_map.ply";
-  ASSERT_EQ(Shell(std::string(TWISTSLAM_BIN) + " map --server " + server.address() + " --session " + session +
-                    " --out " + ply,
-                &err),
+  ASSERT_EQ(Shell(std::string(TWISTSLAM_BIN) + " map --server " + server.address() + " --session " +
+                      session + " --out " + ply,
+                  &err),
             0)
       << err;
   EXPECT_THAT(ReadAll(ply), HasSubstr("end_header"));
-  EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) + " map --server " + server.address() + " --session nope --out " + ply +
-                    ".2",
-                &err),
+  EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) + " map --server " + server.address() +
+                      " --session nope --out " + ply + ".2",
+                  &err),
             1);
   EXPECT_THAT(err, HasSubstr("not found"));
   EXPECT_FALSE(fs::exists(ply + ".2"));
@@ -171,21 +176,26 @@ TEST(Cli, ServerRunAndMapEndToEnd) {
 
 TEST(Cli, BadArgumentsAndInputsFailWithOneLine) {
   std::string err;
-  EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) + " run --dataset /x --format kitti-odometry --seq 00 --out /tmp/x", &err), 2);
+  EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) +
+                      " run --dataset /x --format kitti-odometry --seq 00 --out /tmp/x",
+                  &err),
+            2);
   EXPECT_THAT(err, HasSubstr("exactly one of --server"));
   EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1);
   const std::string out = ::testing::TempDir() + "/twist_cli_missing";
   fs::remove_all(out);
-  EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) + " run --dataset /nonexistent --format kitti-odometry --seq 00 --out " +
-                    out + " --embedded",
-                &err),
+  EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) +
+                      " run --dataset /nonexistent --format kitti-odometry --seq 00 --out " + out +
+                      " --embedded",
+                  &err),
             1);
   EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1);
   EXPECT_FALSE(fs::exists(out + "/summary.json"));
   // No server there: a clear failure, no outputs.
   EXPECT_NE(Shell(std::string(TWISTSLAM_BIN) + " run --dataset " + MakeDataset() +
-                    " --format kitti-tracking --seq 0000 --out " + out + " --server 127.0.0.1:1 --token-file /nope",
-                &err),
+                      " --format kitti-tracking --seq 0000 --out " + out +
+                      " --server 127.0.0.1:1 --token-file /nope",
+                  &err),
             0);
   EXPECT_THAT(err, HasSubstr("token file"));
   EXPECT_EQ(Shell(std::string(TWISTSLAM_SERVER_BIN) + " --bogus 1", &err), 2);

@@ -22,10 +22,14 @@ TEST(FrameEncoding, EveryTypeRoundTripsThroughTheServerDecoder) {
     int type;
     pb::ImageEncoding encoding;
   };
-  const Case cases[] = {{CV_8UC1, pb::IMAGE_ENCODING_RAW},  {CV_8UC3, pb::IMAGE_ENCODING_RAW},
-                        {CV_16UC1, pb::IMAGE_ENCODING_RAW}, {CV_32SC1, pb::IMAGE_ENCODING_RAW},
-                        {CV_32FC2, pb::IMAGE_ENCODING_RAW}, {CV_8UC1, pb::IMAGE_ENCODING_PNG},
-                        {CV_8UC3, pb::IMAGE_ENCODING_PNG},  {CV_16UC1, pb::IMAGE_ENCODING_PNG}};
+  const Case cases[] = {{CV_8UC1, pb::IMAGE_ENCODING_RAW},
+                        {CV_8UC3, pb::IMAGE_ENCODING_RAW},
+                        {CV_16UC1, pb::IMAGE_ENCODING_RAW},
+                        {CV_32SC1, pb::IMAGE_ENCODING_RAW},
+                        {CV_32FC2, pb::IMAGE_ENCODING_RAW},
+                        {CV_8UC1, pb::IMAGE_ENCODING_PNG},
+                        {CV_8UC3, pb::IMAGE_ENCODING_PNG},
+                        {CV_16UC1, pb::IMAGE_ENCODING_PNG}};
   for (const Case& c : cases) {
     cv::Mat image(17, 23, c.type);
     rng.fill(image, cv::RNG::UNIFORM, 0, 200);
@@ -34,15 +38,18 @@ TEST(FrameEncoding, EveryTypeRoundTripsThroughTheServerDecoder) {
     absl::StatusOr<cv::Mat> back = server::DecodeImage(wire, "image", 23, 17);
     ASSERT_TRUE(back.ok()) << back.status();
     ASSERT_EQ(back->type(), c.type);
-    EXPECT_EQ(cv::norm(*back, image, cv::NORM_INF), 0.0) << "type " << c.type << " encoding " << c.encoding;
+    EXPECT_EQ(cv::norm(*back, image, cv::NORM_INF), 0.0)
+        << "type " << c.type << " encoding " << c.encoding;
   }
   cv::Mat view = cv::Mat(40, 40, CV_8UC1, cv::Scalar(9))(cv::Rect(3, 4, 20, 10));  // non-contiguous
   pb::Image wire;
   ASSERT_TRUE(EncodeImage(view, pb::IMAGE_ENCODING_RAW, &wire).ok());
   EXPECT_EQ(wire.data().size(), 200u);
   EXPECT_TRUE(absl::IsInvalidArgument(EncodeImage(cv::Mat(), pb::IMAGE_ENCODING_RAW, &wire)));
-  EXPECT_TRUE(absl::IsInvalidArgument(EncodeImage(cv::Mat(4, 4, CV_16UC1), pb::IMAGE_ENCODING_JPEG, &wire)));
-  EXPECT_TRUE(absl::IsInvalidArgument(EncodeImage(cv::Mat(4, 4, CV_64FC1), pb::IMAGE_ENCODING_RAW, &wire)));
+  EXPECT_TRUE(absl::IsInvalidArgument(
+      EncodeImage(cv::Mat(4, 4, CV_16UC1), pb::IMAGE_ENCODING_JPEG, &wire)));
+  EXPECT_TRUE(
+      absl::IsInvalidArgument(EncodeImage(cv::Mat(4, 4, CV_64FC1), pb::IMAGE_ENCODING_RAW, &wire)));
 }
 
 TEST(SlamConvert, SessionConfigSurvivesTheServerSetup) {
@@ -55,7 +62,8 @@ TEST(SlamConvert, SessionConfigSurvivesTheServerSetup) {
   const pb::SessionConfig wire = SessionConfigToProto(config);
   pb::CreateSessionRequest request;
   *request.mutable_config() = wire;
-  absl::StatusOr<server::SessionSetup> setup = server::BuildSessionSetup(request, server::SetupLimits());
+  absl::StatusOr<server::SessionSetup> setup =
+      server::BuildSessionSetup(request, server::SetupLimits());
   ASSERT_TRUE(setup.ok()) << setup.status();
   EXPECT_EQ(setup->config.camera.fx, 700.0);
   EXPECT_EQ(setup->config.camera.cy, 150.25);
@@ -74,8 +82,9 @@ TEST(SlamConvert, FrameResultRoundTrip) {
   r.index = 12;
   r.timestamp_ns = 1200;
   r.state = TrackingState::kRelocalized;
-  r.world_from_camera = geometry::SE3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitY())),
-                                       Eigen::Vector3d(1, 2, 3));
+  r.world_from_camera =
+      geometry::SE3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitY())),
+                     Eigen::Vector3d(1, 2, 3));
   r.num_map_points = 77;
   ObjectResult o;
   o.id = 3;
@@ -108,8 +117,10 @@ TEST(SlamConvert, FrameResultRoundTrip) {
 
 TEST(SlamConvert, MapChunksReassembleAndExportToPly) {
   MapSnapshot map;
-  for (int i = 0; i < 5000; ++i) map.points.push_back({Eigen::Vector3d(i, 1, 2), i % 3 == 0 ? 26 : 7, i % 5 - 1});
-  map.keyframes.push_back({1, 100, geometry::SE3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, 4))});
+  for (int i = 0; i < 5000; ++i)
+    map.points.push_back({Eigen::Vector3d(i, 1, 2), i % 3 == 0 ? 26 : 7, i % 5 - 1});
+  map.keyframes.push_back(
+      {1, 100, geometry::SE3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, 4))});
   MapSnapshot::Cluster c;
   c.id = 8;
   c.plane = Eigen::Vector4d(0, -1, 0, 1.65);

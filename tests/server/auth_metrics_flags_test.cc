@@ -1,12 +1,11 @@
 #include <arpa/inet.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
 #include <fstream>
-
-#include <gmock/gmock.h>
-#include <gtest/gtest.h>
 
 #include "server/auth.h"
 #include "server/metrics.h"
@@ -35,7 +34,8 @@ TEST(TokenAuthenticator, ParsesTokensAndChecksBearerHeaders) {
 TEST(TokenAuthenticator, RejectsBadFiles) {
   EXPECT_TRUE(absl::IsInvalidArgument(TokenAuthenticator::FromText("\n# none\n").status()));
   EXPECT_TRUE(absl::IsInvalidArgument(TokenAuthenticator::FromText("short\n").status()));
-  EXPECT_TRUE(absl::IsInvalidArgument(TokenAuthenticator::FromText("aaaaaaaaa x\naaaaaaaaa y\n").status()));
+  EXPECT_TRUE(
+      absl::IsInvalidArgument(TokenAuthenticator::FromText("aaaaaaaaa x\naaaaaaaaa y\n").status()));
   EXPECT_TRUE(absl::IsInvalidArgument(TokenAuthenticator::FromText("aaaaaaaaa x y\n").status()));
   EXPECT_TRUE(absl::IsNotFound(TokenAuthenticator::FromFile("/nonexistent/tokens").status()));
   TokenAuthenticator off;
@@ -56,7 +56,9 @@ TEST(Metrics, QuantilesAndPrometheusText) {
   g.sessions_loaded = 2;
   g.queue_depth_total = 5;
   const std::string text = m.PrometheusText(g);
-  EXPECT_THAT(text, HasSubstr("# TYPE twistslam_frames_processed_total counter\ntwistslam_frames_processed_total 100\n"));
+  EXPECT_THAT(text,
+              HasSubstr("# TYPE twistslam_frames_processed_total "
+                        "counter\ntwistslam_frames_processed_total 100\n"));
   EXPECT_THAT(text, HasSubstr("twistslam_frames_rejected_total 1\n"));
   EXPECT_THAT(text, HasSubstr("twistslam_frames_dropped_total 3\n"));
   EXPECT_THAT(text, HasSubstr("twistslam_sessions 2\n"));
@@ -88,7 +90,8 @@ std::string HttpGet(int port, const std::string& path) {
 
 TEST(MetricsHttpServer, ServesMetricsOnLoopback) {
   MetricsHttpServer http;
-  absl::StatusOr<int> port = http.Start("127.0.0.1:0", [] { return std::string("twistslam_up 1\n"); });
+  absl::StatusOr<int> port =
+      http.Start("127.0.0.1:0", [] { return std::string("twistslam_up 1\n"); });
   ASSERT_TRUE(port.ok()) << port.status();
   const std::string ok = HttpGet(*port, "/metrics");
   EXPECT_THAT(ok, HasSubstr("HTTP/1.0 200 OK"));
@@ -96,7 +99,8 @@ TEST(MetricsHttpServer, ServesMetricsOnLoopback) {
   EXPECT_THAT(ok, HasSubstr("\r\n\r\ntwistslam_up 1\n"));
   EXPECT_THAT(HttpGet(*port, "/other"), HasSubstr("404"));
   http.Stop();
-  EXPECT_TRUE(absl::IsInvalidArgument(MetricsHttpServer().Start("nonsense", [] { return std::string(); }).status()));
+  EXPECT_TRUE(absl::IsInvalidArgument(
+      MetricsHttpServer().Start("nonsense", [] { return std::string(); }).status()));
 }
 
 absl::StatusOr<ParsedServerFlags> Parse(std::vector<std::string> args) {
@@ -107,16 +111,24 @@ absl::StatusOr<ParsedServerFlags> Parse(std::vector<std::string> args) {
 }
 
 TEST(ServerFlags, FlagsConfigAndErrors) {
-  absl::StatusOr<ParsedServerFlags> f =
-      Parse({"--listen", "127.0.0.1:0", "--state-dir=/tmp/x", "--max-sessions", "3", "--max-message-mb", "32"});
+  absl::StatusOr<ParsedServerFlags> f = Parse({"--listen",
+                                               "127.0.0.1:0",
+                                               "--state-dir=/tmp/x",
+                                               "--max-sessions",
+                                               "3",
+                                               "--max-message-mb",
+                                               "32"});
   ASSERT_TRUE(f.ok()) << f.status();
   EXPECT_EQ(f->options.listen, "127.0.0.1:0");
   EXPECT_EQ(f->options.sessions.state_dir, "/tmp/x");
   EXPECT_EQ(f->options.sessions.max_sessions, 3);
   EXPECT_EQ(f->options.max_message_bytes, 32 << 20);
-  EXPECT_THAT(std::string(Parse({"--bogus", "1"}).status().message()), HasSubstr("unknown flag --bogus"));
-  EXPECT_THAT(std::string(Parse({"--max-sessions", "x"}).status().message()), HasSubstr("--max-sessions"));
-  EXPECT_THAT(std::string(Parse({"--max-message-mb", "2"}).status().message()), HasSubstr("[4, 1024]"));
+  EXPECT_THAT(std::string(Parse({"--bogus", "1"}).status().message()),
+              HasSubstr("unknown flag --bogus"));
+  EXPECT_THAT(std::string(Parse({"--max-sessions", "x"}).status().message()),
+              HasSubstr("--max-sessions"));
+  EXPECT_THAT(std::string(Parse({"--max-message-mb", "2"}).status().message()),
+              HasSubstr("[4, 1024]"));
   EXPECT_THAT(std::string(Parse({"--listen"}).status().message()), HasSubstr("needs a value"));
   EXPECT_TRUE(Parse({"--help"})->help);
 
@@ -137,7 +149,8 @@ TEST(ServerFlags, FlagsConfigAndErrors) {
     std::ofstream out(config);
     out << "%YAML:1.0\nmax_sesions: 7\n";
   }
-  EXPECT_THAT(std::string(Parse({"--config", config}).status().message()), HasSubstr("unknown key max_sesions"));
+  EXPECT_THAT(std::string(Parse({"--config", config}).status().message()),
+              HasSubstr("unknown key max_sesions"));
   EXPECT_TRUE(absl::IsNotFound(Parse({"--config", "/nonexistent.yaml"}).status()));
 }
 

@@ -2,6 +2,7 @@
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+
 #include <opencv2/imgcodecs.hpp>
 
 #include "client/lib/frame_encoding.h"
@@ -21,7 +22,8 @@ constexpr int kH = 48;
 FrameFormat Format() { return FrameFormat{kW, kH, true}; }
 
 TEST(Convert, DecodesRawPngAndJpegFrames) {
-  for (pb::ImageEncoding e : {pb::IMAGE_ENCODING_RAW, pb::IMAGE_ENCODING_PNG, pb::IMAGE_ENCODING_JPEG}) {
+  for (pb::ImageEncoding e :
+       {pb::IMAGE_ENCODING_RAW, pb::IMAGE_ENCODING_PNG, pb::IMAGE_ENCODING_JPEG}) {
     const pb::Frame frame = MakeTestFrame(3, kW, kH, 1, e, /*with_mask=*/true);
     absl::StatusOr<StereoFrame> f = FrameFromProto(frame, Format());
     ASSERT_TRUE(f.ok()) << f.status();
@@ -80,7 +82,8 @@ TEST(Convert, RejectsUndecodableAndTruncatedImages) {
 
   frame = MakeTestFrame(0, kW, kH);
   frame.clear_right();
-  EXPECT_THAT(std::string(FrameFromProto(frame, Format()).status().message()), HasSubstr("lacks its right image"));
+  EXPECT_THAT(std::string(FrameFromProto(frame, Format()).status().message()),
+              HasSubstr("lacks its right image"));
 
   frame = MakeTestFrame(0, kW, kH);
   frame.mutable_left()->set_encoding(pb::IMAGE_ENCODING_UNSPECIFIED);
@@ -90,19 +93,22 @@ TEST(Convert, RejectsUndecodableAndTruncatedImages) {
 TEST(Convert, RejectsMaskOfWrongSizeOrType) {
   pb::Frame frame = MakeTestFrame(0, kW, kH);
   // 8-bit mask: wrong type.
-  ASSERT_TRUE(client::EncodeImage(cv::Mat(kH, kW, CV_8UC1, cv::Scalar(7)), pb::IMAGE_ENCODING_PNG,
+  ASSERT_TRUE(client::EncodeImage(cv::Mat(kH, kW, CV_8UC1, cv::Scalar(7)),
+                                  pb::IMAGE_ENCODING_PNG,
                                   frame.mutable_panoptic())
                   .ok());
   absl::Status s = FrameFromProto(frame, Format()).status();
   EXPECT_THAT(std::string(s.message()), HasSubstr("panoptic mask is 8-bit gray"));
   // 16-bit of the wrong size.
-  ASSERT_TRUE(client::EncodeImage(cv::Mat(kH - 1, kW, CV_16UC1, cv::Scalar(7000)), pb::IMAGE_ENCODING_PNG,
+  ASSERT_TRUE(client::EncodeImage(cv::Mat(kH - 1, kW, CV_16UC1, cv::Scalar(7000)),
+                                  pb::IMAGE_ENCODING_PNG,
                                   frame.mutable_panoptic())
                   .ok());
   s = FrameFromProto(frame, Format()).status();
   EXPECT_THAT(std::string(s.message()), HasSubstr("panoptic mask is 64x47"));
   // RAW int32 is fine.
-  ASSERT_TRUE(client::EncodeImage(cv::Mat(kH, kW, CV_32SC1, cv::Scalar(26001)), pb::IMAGE_ENCODING_RAW,
+  ASSERT_TRUE(client::EncodeImage(cv::Mat(kH, kW, CV_32SC1, cv::Scalar(26001)),
+                                  pb::IMAGE_ENCODING_RAW,
                                   frame.mutable_panoptic())
                   .ok());
   absl::StatusOr<StereoFrame> f = FrameFromProto(frame, Format());
@@ -117,7 +123,8 @@ TEST(Convert, LeftRightTypeMismatchAndColour) {
   pb::Frame frame;
   ASSERT_TRUE(client::MakeFrame(images, pb::IMAGE_ENCODING_PNG, &frame).ok());
   absl::Status s = FrameFromProto(frame, Format()).status();
-  EXPECT_THAT(std::string(s.message()), HasSubstr("right image is 8-bit gray but left image is 8-bit colour"));
+  EXPECT_THAT(std::string(s.message()),
+              HasSubstr("right image is 8-bit gray but left image is 8-bit colour"));
   images.right = images.left.clone();
   ASSERT_TRUE(client::MakeFrame(images, pb::IMAGE_ENCODING_PNG, &frame).ok());
   absl::StatusOr<StereoFrame> f = FrameFromProto(frame, Format());
@@ -142,19 +149,22 @@ TEST(Convert, FlowAndBoxes) {
   EXPECT_EQ(f->boxes[0].x_max, 10);
 
   box->set_x_max(0);
-  EXPECT_THAT(std::string(FrameFromProto(frame, Format()).status().message()), HasSubstr("is inverted"));
+  EXPECT_THAT(std::string(FrameFromProto(frame, Format()).status().message()),
+              HasSubstr("is inverted"));
   box->set_x_max(10);
   FrameFormat no_flow = Format();
   no_flow.allow_flow = false;
   EXPECT_TRUE(absl::IsInvalidArgument(FrameFromProto(frame, no_flow).status()));
   flow.at<cv::Vec2f>(0, 0)[0] = std::numeric_limits<float>::quiet_NaN();
   ASSERT_TRUE(client::EncodeImage(flow, pb::IMAGE_ENCODING_RAW, frame.mutable_flow()).ok());
-  EXPECT_THAT(std::string(FrameFromProto(frame, Format()).status().message()), HasSubstr("non-finite"));
+  EXPECT_THAT(std::string(FrameFromProto(frame, Format()).status().message()),
+              HasSubstr("non-finite"));
 }
 
 TEST(Convert, PoseAndTwistRoundTrip) {
-  const geometry::SE3d pose(Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, 2, 3).normalized())),
-                            Eigen::Vector3d(1, -2, 3));
+  const geometry::SE3d pose(
+      Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, 2, 3).normalized())),
+      Eigen::Vector3d(1, -2, 3));
   pb::Pose p;
   ToProto(pose, &p);
   absl::StatusOr<geometry::SE3d> back = FromProto(p);
@@ -204,10 +214,12 @@ TEST(Convert, ClassTableFromProtoBuildsTheJointGraph) {
   EXPECT_TRUE(absl::IsInvalidArgument(ClassTableFromProto(table).status()));
   edge->set_parent_class_id(7);
   edge->set_joint_type(pb::JOINT_TYPE_UNSPECIFIED);
-  EXPECT_THAT(std::string(ClassTableFromProto(table).status().message()), HasSubstr("not a valid JointType"));
+  EXPECT_THAT(std::string(ClassTableFromProto(table).status().message()),
+              HasSubstr("not a valid JointType"));
   edge->set_joint_type(pb::JOINT_TYPE_PLANAR);
   table.add_classes()->set_id(7);
-  EXPECT_THAT(std::string(ClassTableFromProto(table).status().message()), HasSubstr("duplicate class id 7"));
+  EXPECT_THAT(std::string(ClassTableFromProto(table).status().message()),
+              HasSubstr("duplicate class id 7"));
 }
 
 TEST(Convert, JointTypesMapBothWays) {
@@ -245,7 +257,8 @@ TEST(Convert, CalibrationValidation) {
   EXPECT_THAT(std::string(RectifiedCameraFromProto(c).status().message()), HasSubstr("baseline"));
   c.set_baseline(0.5);
   c.set_cx(kW + 5);
-  EXPECT_THAT(std::string(RectifiedCameraFromProto(c).status().message()), HasSubstr("principal point"));
+  EXPECT_THAT(std::string(RectifiedCameraFromProto(c).status().message()),
+              HasSubstr("principal point"));
   c.set_cx(10);
   c.set_width(0);
   EXPECT_TRUE(absl::IsInvalidArgument(RectifiedCameraFromProto(c).status()));
@@ -337,8 +350,10 @@ TEST(Convert, StatusMappingKeepsCodeAndMessage) {
   EXPECT_EQ(g.error_code(), grpc::StatusCode::NOT_FOUND);
   EXPECT_EQ(g.error_message(), "session 'x' not found");
   EXPECT_TRUE(ToGrpcStatus(absl::OkStatus()).ok());
-  EXPECT_EQ(ToGrpcStatus(absl::FailedPreconditionError("x")).error_code(), grpc::StatusCode::FAILED_PRECONDITION);
-  EXPECT_TRUE(absl::IsResourceExhausted(FromGrpcStatus(grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED, "m"))));
+  EXPECT_EQ(ToGrpcStatus(absl::FailedPreconditionError("x")).error_code(),
+            grpc::StatusCode::FAILED_PRECONDITION);
+  EXPECT_TRUE(absl::IsResourceExhausted(
+      FromGrpcStatus(grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED, "m"))));
 }
 
 TEST(Rectifier, IdentityRigKeepsImagesAndBaseline) {
@@ -360,7 +375,8 @@ TEST(Rectifier, IdentityRigKeepsImagesAndBaseline) {
   const cv::Mat before = frame.left.clone();
   frame.boxes.push_back({26, 1, 10, 10, 20, 20});
   r->Rectify(&frame);
-  EXPECT_LE(cv::norm(frame.left(cv::Rect(2, 2, kW - 4, kH - 4)), before(cv::Rect(2, 2, kW - 4, kH - 4)),
+  EXPECT_LE(cv::norm(frame.left(cv::Rect(2, 2, kW - 4, kH - 4)),
+                     before(cv::Rect(2, 2, kW - 4, kH - 4)),
                      cv::NORM_INF),
             1.0);
   EXPECT_EQ(cv::norm(frame.panoptic, mask_before, cv::NORM_INF), 0.0);
@@ -375,12 +391,14 @@ TEST(Rectifier, RejectsDegenerateRigs) {
   rig.left = {100, 100, kW / 2.0, kH / 2.0, {0.1, 0.01}};  // 2 coefficients: invalid
   rig.right = {100, 100, kW / 2.0, kH / 2.0, {}};
   rig.right_from_left = geometry::SE3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(-0.5, 0, 0));
-  EXPECT_THAT(std::string(StereoRectifier::Create(rig).status().message()), HasSubstr("distortion"));
+  EXPECT_THAT(std::string(StereoRectifier::Create(rig).status().message()),
+              HasSubstr("distortion"));
   rig.left.distortion = {-0.1, 0.01, 0, 0, 0};
   rig.right_from_left = geometry::SE3d();
   EXPECT_THAT(std::string(StereoRectifier::Create(rig).status().message()), HasSubstr("baseline"));
-  rig.right_from_left = geometry::SE3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.02, Eigen::Vector3d::UnitY())),
-                                       Eigen::Vector3d(-0.5, 0.01, 0));
+  rig.right_from_left =
+      geometry::SE3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.02, Eigen::Vector3d::UnitY())),
+                     Eigen::Vector3d(-0.5, 0.01, 0));
   absl::StatusOr<StereoRectifier> r = StereoRectifier::Create(rig);
   ASSERT_TRUE(r.ok()) << r.status();
   EXPECT_NEAR(r->rectified_camera().baseline, std::sqrt(0.25 + 0.0001), 1e-6);

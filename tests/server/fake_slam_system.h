@@ -9,12 +9,11 @@
 #include <chrono>
 #include <fstream>
 #include <memory>
+#include <opencv2/core.hpp>
 #include <set>
 #include <sstream>
 #include <string>
 #include <thread>
-
-#include <opencv2/core.hpp>
 
 #include "absl/strings/str_cat.h"
 #include "absl/synchronization/notification.h"
@@ -25,20 +24,25 @@ namespace twist::testing {
 
 class FakeSlamSystem : public SlamSystem {
  public:
-  FakeSlamSystem(const SessionConfig& config, int delay_ms, std::shared_ptr<absl::Notification> gate = nullptr)
+  FakeSlamSystem(const SessionConfig& config,
+                 int delay_ms,
+                 std::shared_ptr<absl::Notification> gate = nullptr)
       : config_(config), delay_ms_(delay_ms), gate_(std::move(gate)) {}
 
   absl::StatusOr<FrameResult> Process(const StereoFrame& frame) override {
     if (shut_down_) return absl::FailedPreconditionError("shut down");
     const auto& cam = config_.camera;
-    if (frame.left.cols != cam.width || frame.left.rows != cam.height || frame.right.size() != frame.left.size()) {
+    if (frame.left.cols != cam.width || frame.left.rows != cam.height ||
+        frame.right.size() != frame.left.size()) {
       return absl::InvalidArgumentError("image size does not match the calibration");
     }
-    if (frame.left.type() != frame.right.type()) return absl::InvalidArgumentError("left/right types differ");
+    if (frame.left.type() != frame.right.type())
+      return absl::InvalidArgumentError("left/right types differ");
     if (!frame.panoptic.empty() && frame.panoptic.size() != frame.left.size()) {
       return absl::InvalidArgumentError("mask size mismatch");
     }
-    if (frames_ > 0 && frame.timestamp_ns <= last_ts_) return absl::InvalidArgumentError("timestamp not increasing");
+    if (frames_ > 0 && frame.timestamp_ns <= last_ts_)
+      return absl::InvalidArgumentError("timestamp not increasing");
     if (delay_ms_ > 0) std::this_thread::sleep_for(std::chrono::milliseconds(delay_ms_));
     if (gate_) gate_->WaitForNotification();  // a stalled engine until released
     // The pose integrates the image content, so a reordered, dropped or
@@ -50,8 +54,9 @@ class FakeSlamSystem : public SlamSystem {
     r.index = frame.index;
     r.timestamp_ns = frame.timestamp_ns;
     r.state = frames_ == 0 ? TrackingState::kNotInitialized : TrackingState::kOk;
-    r.world_from_camera = geometry::SE3d(
-        Eigen::Quaterniond(Eigen::AngleAxisd(yaw_, Eigen::Vector3d::UnitY())), Eigen::Vector3d(0, 0, z_));
+    r.world_from_camera =
+        geometry::SE3d(Eigen::Quaterniond(Eigen::AngleAxisd(yaw_, Eigen::Vector3d::UnitY())),
+                       Eigen::Vector3d(0, 0, z_));
     r.is_keyframe = frames_ % 5 == 0;
     r.num_map_points = static_cast<int>(10 * (frames_ + 1));
     r.num_keyframes = static_cast<int>(frames_ / 5 + 1);
@@ -68,7 +73,8 @@ class FakeSlamSystem : public SlamSystem {
         o.class_id = id / 1000;
         o.instance_id = id % 1000;
         o.state = ObjectState::kTracked;
-        o.world_from_object = geometry::SE3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(1, 0, z_ + 5));
+        o.world_from_object =
+            geometry::SE3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(1, 0, z_ + 5));
         o.twist_in_world << 1, 0, 0, 0, 0, 0.1;
         o.twist_in_joint << 1, 0, 0, 0, 0, 0.1;
         o.speed_mps = 1.0;
@@ -116,8 +122,9 @@ class FakeSlamSystem : public SlamSystem {
     std::ofstream out(path + ".tmp");
     out.precision(17);
     const auto& c = config_.camera;
-    out << frames_ << " " << last_ts_ << " " << z_ << " " << yaw_ << " " << c.fx << " " << c.fy << " " << c.cx
-        << " " << c.cy << " " << c.baseline << " " << c.width << " " << c.height << " " << delay_ms_ << "\n";
+    out << frames_ << " " << last_ts_ << " " << z_ << " " << yaw_ << " " << c.fx << " " << c.fy
+        << " " << c.cx << " " << c.cy << " " << c.baseline << " " << c.width << " " << c.height
+        << " " << delay_ms_ << "\n";
     out.close();
     if (!out) return absl::InternalError("fake save failed");
     std::rename((path + ".tmp").c_str(), path.c_str());
@@ -132,7 +139,8 @@ class FakeSlamSystem : public SlamSystem {
     double z = 0, yaw = 0;
     int delay = 0;
     auto& c = config.camera;
-    in >> frames >> last_ts >> z >> yaw >> c.fx >> c.fy >> c.cx >> c.cy >> c.baseline >> c.width >> c.height >> delay;
+    in >> frames >> last_ts >> z >> yaw >> c.fx >> c.fy >> c.cx >> c.cy >> c.baseline >> c.width >>
+        c.height >> delay;
     if (!in) return absl::DataLossError("corrupt fake state");
     auto sys = std::make_unique<FakeSlamSystem>(config, delay);
     sys->frames_ = frames;
@@ -156,9 +164,11 @@ class FakeSlamSystem : public SlamSystem {
   std::atomic<bool> shut_down_{false};
 };
 
-inline server::SlamSystemFactory FakeFactory(int delay_ms = 0, std::shared_ptr<absl::Notification> gate = nullptr) {
+inline server::SlamSystemFactory FakeFactory(int delay_ms = 0,
+                                             std::shared_ptr<absl::Notification> gate = nullptr) {
   server::SlamSystemFactory f;
-  f.create = [delay_ms, gate](const SessionConfig& config) -> absl::StatusOr<std::unique_ptr<SlamSystem>> {
+  f.create = [delay_ms,
+              gate](const SessionConfig& config) -> absl::StatusOr<std::unique_ptr<SlamSystem>> {
     if (!(config.camera.fx > 0)) return absl::InvalidArgumentError("bad camera");
     return std::unique_ptr<SlamSystem>(std::make_unique<FakeSlamSystem>(config, delay_ms, gate));
   };

@@ -1,8 +1,8 @@
 #include "server/frame_queue.h"
 
-#include <thread>
-
 #include <gtest/gtest.h>
+
+#include <thread>
 
 namespace twist::server {
 namespace {

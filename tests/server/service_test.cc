@@ -1,14 +1,14 @@
 // The server's mechanics end to end on loopback with a fake engine: sessions,
 // limits, bad input, flow control, takeover/reconnect, persistence across a
 // restart, auth, shutdown, map chunks, metrics, health.
+#include <gmock/gmock.h>
+#include <grpcpp/generic/generic_stub.h>
+#include <gtest/gtest.h>
+
 #include <filesystem>
 #include <fstream>
 #include <future>
 #include <mutex>
-
-#include <gmock/gmock.h>
-#include <grpcpp/generic/generic_stub.h>
-#include <gtest/gtest.h>
 
 #include "client/lib/slam_client.h"
 #include "server/server.h"
@@ -38,12 +38,14 @@ ServerOptions TestOptions() {
 }
 
 std::unique_ptr<TwistServer> StartServer(const ServerOptions& options, int delay_ms = 0) {
-  absl::StatusOr<std::unique_ptr<TwistServer>> s = TwistServer::Start(options, FakeFactory(delay_ms));
+  absl::StatusOr<std::unique_ptr<TwistServer>> s =
+      TwistServer::Start(options, FakeFactory(delay_ms));
   EXPECT_TRUE(s.ok()) << s.status();
   return s.ok() ? std::move(*s) : nullptr;
 }
 
-std::unique_ptr<client::SlamClient> Connect(const std::string& address, const std::string& token = "") {
+std::unique_ptr<client::SlamClient> Connect(const std::string& address,
+                                            const std::string& token = "") {
   client::ClientOptions o;
   o.address = address;
   o.token = token;
@@ -64,13 +66,17 @@ struct Collector {
       std::lock_guard<std::mutex> lock(mu);
       if (r.has_update()) updates.push_back(r.update());
       if (r.has_error()) errors.push_back(r.error());
-      if (r.has_dropped()) dropped.insert(dropped.end(), r.dropped().indices().begin(), r.dropped().indices().end());
+      if (r.has_dropped())
+        dropped.insert(dropped.end(), r.dropped().indices().begin(), r.dropped().indices().end());
     };
   }
 };
 
 // Poses the fake engine gives for frames [0, n) when run directly.
-std::vector<geometry::SE3d> EmbeddedPoses(int n, int width = kW, int height = kH, uint64_t seed = 1) {
+std::vector<geometry::SE3d> EmbeddedPoses(int n,
+                                          int width = kW,
+                                          int height = kH,
+                                          uint64_t seed = 1) {
   SessionConfig config;
   config.camera.fx = 100;
   config.camera.width = width;
@@ -88,7 +94,8 @@ std::vector<geometry::SE3d> EmbeddedPoses(int n, int width = kW, int height = kH
   return poses;
 }
 
-void ExpectPosesEqual(const std::vector<pb::FrameUpdate>& updates, const std::vector<geometry::SE3d>& expected) {
+void ExpectPosesEqual(const std::vector<pb::FrameUpdate>& updates,
+                      const std::vector<geometry::SE3d>& expected) {
   ASSERT_EQ(updates.size(), expected.size());
   for (size_t i = 0; i < updates.size(); ++i) {
     EXPECT_EQ(updates[i].index(), static_cast<int64_t>(i));
@@ -159,7 +166,8 @@ TEST(Service, EveryBadInputIsAnsweredAndTheNextFrameWorks) {
   auto created = client->CreateSession(MakeCreateRequest(kW, kH));
   ASSERT_TRUE(created.ok());
   Collector c;
-  ASSERT_TRUE(client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
+  ASSERT_TRUE(
+      client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
   int64_t next = 0;
   auto valid = [&] { return MakeTestFrame(next++, kW, kH); };
   std::vector<std::pair<pb::Frame, std::string>> bad_frames;
@@ -169,11 +177,13 @@ TEST(Service, EveryBadInputIsAnsweredAndTheNextFrameWorks) {
   f.mutable_left()->set_data("garbage that is not an image");
   bad_frames.push_back({f, "left image"});
   f = MakeTestFrame(102, kW, kH);
-  client::EncodeImage(cv::Mat(kH / 2, kW, CV_16UC1, cv::Scalar(7000)), pb::IMAGE_ENCODING_PNG, f.mutable_panoptic())
+  client::EncodeImage(
+      cv::Mat(kH / 2, kW, CV_16UC1, cv::Scalar(7000)), pb::IMAGE_ENCODING_PNG, f.mutable_panoptic())
       .IgnoreError();
   bad_frames.push_back({f, "panoptic mask is 64x24"});
   f = MakeTestFrame(103, kW, kH);
-  client::EncodeImage(cv::Mat(kH, kW, CV_8UC1, cv::Scalar(7)), pb::IMAGE_ENCODING_RAW, f.mutable_panoptic())
+  client::EncodeImage(
+      cv::Mat(kH, kW, CV_8UC1, cv::Scalar(7)), pb::IMAGE_ENCODING_RAW, f.mutable_panoptic())
       .IgnoreError();
   bad_frames.push_back({f, "panoptic mask is 8-bit gray"});
 
@@ -210,7 +220,8 @@ TEST(Service, StreamProtocolErrors) {
   auto client = Connect(server->address());
   auto created = client->CreateSession(MakeCreateRequest(kW, kH));
   ASSERT_TRUE(created.ok());
-  auto raw_stream = [&](const std::vector<pb::StreamRequest>& requests, std::vector<pb::StreamResponse>* out) {
+  auto raw_stream = [&](const std::vector<pb::StreamRequest>& requests,
+                        std::vector<pb::StreamResponse>* out) {
     grpc::ClientContext context;
     auto stream = client->stub()->Stream(&context);
     for (const auto& r : requests) stream->Write(r);
@@ -276,7 +287,8 @@ TEST(Service, DropOldestReportsDropsAndBlockLosesNothing) {
   ASSERT_TRUE(dropping.ok());
   EXPECT_EQ(dropping->session().policy().queue_capacity(), 1);
   Collector c;
-  ASSERT_TRUE(client->OpenStream(dropping->session_id(), dropping->resume_token(), c.callback()).ok());
+  ASSERT_TRUE(
+      client->OpenStream(dropping->session_id(), dropping->resume_token(), c.callback()).ok());
   constexpr int kFrames = 12;
   for (int i = 0; i < kFrames; ++i) ASSERT_TRUE(client->Send(MakeTestFrame(i, kW, kH)).ok());
   ASSERT_TRUE(client->CloseStream().ok());
@@ -287,7 +299,8 @@ TEST(Service, DropOldestReportsDropsAndBlockLosesNothing) {
   request.mutable_policy()->set_overflow(pb::OVERFLOW_POLICY_BLOCK);
   auto blocking = client->CreateSession(request);
   Collector b;
-  ASSERT_TRUE(client->OpenStream(blocking->session_id(), blocking->resume_token(), b.callback()).ok());
+  ASSERT_TRUE(
+      client->OpenStream(blocking->session_id(), blocking->resume_token(), b.callback()).ok());
   for (int i = 0; i < kFrames; ++i) ASSERT_TRUE(client->Send(MakeTestFrame(i, kW, kH)).ok());
   ASSERT_TRUE(client->CloseStream().ok());
   EXPECT_TRUE(b.dropped.empty());
@@ -299,7 +312,8 @@ TEST(Service, BrokenStreamReconnectsAndContinuesExactly) {
   auto client = Connect(server->address());
   auto created = client->CreateSession(MakeCreateRequest(kW, kH));
   Collector c;
-  ASSERT_TRUE(client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
+  ASSERT_TRUE(
+      client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
   constexpr int kFrames = 20;
   for (int i = 0; i < kFrames; ++i) {
     if (i == 7 || i == 13) client->DropConnectionForTesting();
@@ -308,10 +322,15 @@ TEST(Service, BrokenStreamReconnectsAndContinuesExactly) {
   ASSERT_TRUE(client->CloseStream().ok());
   EXPECT_GE(client->reconnects(), 2);
   // Nothing lost, nothing processed twice: the same poses as one clean run.
-  std::sort(c.updates.begin(), c.updates.end(),
-            [](const pb::FrameUpdate& a, const pb::FrameUpdate& b) { return a.index() < b.index(); });
-  c.updates.erase(std::unique(c.updates.begin(), c.updates.end(),
-                              [](const pb::FrameUpdate& a, const pb::FrameUpdate& b) { return a.index() == b.index(); }),
+  std::sort(
+      c.updates.begin(), c.updates.end(), [](const pb::FrameUpdate& a, const pb::FrameUpdate& b) {
+        return a.index() < b.index();
+      });
+  c.updates.erase(std::unique(c.updates.begin(),
+                              c.updates.end(),
+                              [](const pb::FrameUpdate& a, const pb::FrameUpdate& b) {
+                                return a.index() == b.index();
+                              }),
                   c.updates.end());
   ExpectPosesEqual(c.updates, EmbeddedPoses(kFrames));
   EXPECT_EQ(client->ListSessions()->at(0).frames_processed(), kFrames);
@@ -323,13 +342,16 @@ TEST(Service, ANewStreamTakesOverTheSession) {
   auto created = first->CreateSession(MakeCreateRequest(kW, kH));
   first->Send(MakeTestFrame(0, kW, kH)).IgnoreError();  // no stream: refused
   Collector c1, c2;
-  ASSERT_TRUE(first->OpenStream(created->session_id(), created->resume_token(), c1.callback()).ok());
+  ASSERT_TRUE(
+      first->OpenStream(created->session_id(), created->resume_token(), c1.callback()).ok());
   ASSERT_TRUE(first->Send(MakeTestFrame(0, kW, kH)).ok());
   // Wait until frame 0 is answered so the takeover cannot discard it.
-  for (int i = 0; i < 2000 && first->ListSessions()->at(0).frames_processed() < 1; ++i) absl::SleepFor(absl::Milliseconds(5));
+  for (int i = 0; i < 2000 && first->ListSessions()->at(0).frames_processed() < 1; ++i)
+    absl::SleepFor(absl::Milliseconds(5));
 
   auto second = Connect(server->address());
-  ASSERT_TRUE(second->OpenStream(created->session_id(), created->resume_token(), c2.callback()).ok());
+  ASSERT_TRUE(
+      second->OpenStream(created->session_id(), created->resume_token(), c2.callback()).ok());
   EXPECT_EQ(second->bound_session().last_frame_index(), 0);
   ASSERT_TRUE(second->Send(MakeTestFrame(1, kW, kH)).ok());
   ASSERT_TRUE(second->CloseStream().ok());
@@ -337,7 +359,9 @@ TEST(Service, ANewStreamTakesOverTheSession) {
   EXPECT_TRUE(absl::IsAborted(s)) << s;
   EXPECT_THAT(std::string(s.message()), HasSubstr("taken over"));
   ASSERT_EQ(c2.updates.size(), 1u);
-  EXPECT_NEAR(c2.updates[0].world_from_camera().translation().z(), EmbeddedPoses(2)[1].translation().z(), 1e-12);
+  EXPECT_NEAR(c2.updates[0].world_from_camera().translation().z(),
+              EmbeddedPoses(2)[1].translation().z(),
+              1e-12);
 }
 
 TEST(Service, RestartResumesFromTheStateDirectoryWithNothingLost) {
@@ -351,7 +375,8 @@ TEST(Service, RestartResumesFromTheStateDirectoryWithNothingLost) {
   auto created = client->CreateSession(MakeCreateRequest(kW, kH));
   ASSERT_TRUE(created.ok());
   Collector c;
-  ASSERT_TRUE(client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
+  ASSERT_TRUE(
+      client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
   constexpr int kFrames = 16;
   std::future<void> restart;
   for (int i = 0; i < kFrames; ++i) {
@@ -368,15 +393,18 @@ TEST(Service, RestartResumesFromTheStateDirectoryWithNothingLost) {
   }
   ASSERT_TRUE(client->CloseStream().ok());
   EXPECT_GE(client->reconnects(), 1);
-  std::sort(c.updates.begin(), c.updates.end(),
-            [](const pb::FrameUpdate& a, const pb::FrameUpdate& b) { return a.index() < b.index(); });
+  std::sort(
+      c.updates.begin(), c.updates.end(), [](const pb::FrameUpdate& a, const pb::FrameUpdate& b) {
+        return a.index() < b.index();
+      });
   // Updates the old server could not deliver are not replayed across a
   // restart; every frame's effect is still in the state (poses continue).
   ASSERT_FALSE(c.updates.empty());
   EXPECT_EQ(c.updates.back().index(), kFrames - 1);
   const std::vector<geometry::SE3d> expected = EmbeddedPoses(kFrames);
   for (const pb::FrameUpdate& u : c.updates) {
-    EXPECT_NEAR(u.world_from_camera().translation().z(), expected[u.index()].translation().z(), 1e-12);
+    EXPECT_NEAR(
+        u.world_from_camera().translation().z(), expected[u.index()].translation().z(), 1e-12);
   }
   EXPECT_EQ(client->ListSessions()->at(0).frames_processed(), kFrames);
 
@@ -390,8 +418,10 @@ TEST(Service, RestartResumesFromTheStateDirectoryWithNothingLost) {
   ASSERT_EQ(list->size(), 1u);
   EXPECT_EQ(list->at(0).state(), pb::SESSION_STATE_STORED);
   Collector unused;
-  EXPECT_TRUE(absl::IsFailedPrecondition(fresh->OpenStream(created->session_id(), "", unused.callback())));
-  EXPECT_TRUE(absl::IsPermissionDenied(fresh->ResumeSession(created->session_id(), "wrong").status()));
+  EXPECT_TRUE(
+      absl::IsFailedPrecondition(fresh->OpenStream(created->session_id(), "", unused.callback())));
+  EXPECT_TRUE(
+      absl::IsPermissionDenied(fresh->ResumeSession(created->session_id(), "wrong").status()));
   auto resumed = fresh->ResumeSession(created->session_id(), created->resume_token());
   ASSERT_TRUE(resumed.ok()) << resumed.status();
   EXPECT_TRUE(resumed->loaded_from_disk());
@@ -419,7 +449,8 @@ TEST(Service, IdleSessionsArePersistedAndUnloaded) {
   auto created = client->CreateSession(request);
   auto keep = client->CreateSession(MakeCreateRequest(kW, kH));  // default 600 s
   Collector c;
-  ASSERT_TRUE(client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
+  ASSERT_TRUE(
+      client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
   ASSERT_TRUE(client->Send(MakeTestFrame(0, kW, kH)).ok());
   ASSERT_TRUE(client->CloseStream().ok());
   server->sessions()->Housekeeping(absl::Now() + absl::Seconds(60));
@@ -443,7 +474,8 @@ TEST(Service, AuthRequiredAndSessionsIsolatedPerToken) {
   auto anonymous = Connect(server->address());
   absl::Status s = anonymous->CreateSession(MakeCreateRequest(kW, kH)).status();
   EXPECT_TRUE(absl::IsUnauthenticated(s)) << s;
-  EXPECT_TRUE(absl::IsUnauthenticated(Connect(server->address(), "token-mallory")->ListSessions().status()));
+  EXPECT_TRUE(absl::IsUnauthenticated(
+      Connect(server->address(), "token-mallory")->ListSessions().status()));
   Collector unused;
   EXPECT_TRUE(absl::IsUnauthenticated(anonymous->OpenStream("x", "", unused.callback())));
 
@@ -453,12 +485,14 @@ TEST(Service, AuthRequiredAndSessionsIsolatedPerToken) {
   ASSERT_TRUE(created.ok()) << created.status();
   EXPECT_EQ(alice->ListSessions()->size(), 1u);
   EXPECT_EQ(bob->ListSessions()->size(), 0u);
-  EXPECT_TRUE(absl::IsNotFound(bob->OpenStream(created->session_id(), created->resume_token(), unused.callback())));
+  EXPECT_TRUE(absl::IsNotFound(
+      bob->OpenStream(created->session_id(), created->resume_token(), unused.callback())));
   EXPECT_TRUE(absl::IsNotFound(bob->CloseSession(created->session_id(), false).status()));
   pb::GetMapRequest map_request;
   map_request.set_session_id(created->session_id());
   EXPECT_TRUE(absl::IsNotFound(bob->GetMap(map_request).status()));
-  EXPECT_TRUE(absl::IsNotFound(bob->ResumeSession(created->session_id(), created->resume_token()).status()));
+  EXPECT_TRUE(absl::IsNotFound(
+      bob->ResumeSession(created->session_id(), created->resume_token()).status()));
   EXPECT_TRUE(alice->GetMap(map_request).ok());
   EXPECT_TRUE(alice->GetServerInfo()->auth_required());
 }
@@ -471,14 +505,19 @@ int HealthStatus(const std::string& address) {
   const grpc::Slice empty;
   grpc::ByteBuffer request(&empty, 1), response;
   std::promise<grpc::Status> done;
-  stub.UnaryCall(&context, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request, &response,
+  stub.UnaryCall(&context,
+                 "/grpc.health.v1.Health/Check",
+                 grpc::StubOptions(),
+                 &request,
+                 &response,
                  [&done](grpc::Status s) { done.set_value(s); });
   const grpc::Status s = done.get_future().get();
   if (!s.ok()) return -static_cast<int>(s.error_code());
   std::vector<grpc::Slice> slices;
   response.Dump(&slices);
   std::string bytes;
-  for (const auto& slice : slices) bytes.append(reinterpret_cast<const char*>(slice.begin()), slice.size());
+  for (const auto& slice : slices)
+    bytes.append(reinterpret_cast<const char*>(slice.begin()), slice.size());
   // HealthCheckResponse{status = 1 SERVING | 2 NOT_SERVING}: field 1 varint.
   return bytes.size() == 2 && bytes[0] == 0x08 ? bytes[1] : 0;
 }
@@ -544,8 +583,10 @@ TEST(Service, MapChunksMetricsAndUnrectifiedRig) {
   ASSERT_TRUE(created.ok()) << created.status();
   EXPECT_NEAR(created->effective_calibration().baseline(), 0.4, 1e-9);
   Collector c;
-  ASSERT_TRUE(client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
-  for (int i = 0; i < 30; ++i) ASSERT_TRUE(client->Send(MakeTestFrame(i, kW, kH, 1, pb::IMAGE_ENCODING_PNG, true)).ok());
+  ASSERT_TRUE(
+      client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
+  for (int i = 0; i < 30; ++i)
+    ASSERT_TRUE(client->Send(MakeTestFrame(i, kW, kH, 1, pb::IMAGE_ENCODING_PNG, true)).ok());
   ASSERT_TRUE(client->CloseStream().ok());
   ASSERT_EQ(c.updates.size(), 30u);
   ASSERT_EQ(c.updates[0].objects_size(), 1);  // the car instance in the mask
@@ -593,7 +634,8 @@ TEST(Service, TlsServesOnlyTlsClients) {
   auto created = tls_client->CreateSession(MakeCreateRequest(kW, kH));
   ASSERT_TRUE(created.ok());
   Collector c;
-  ASSERT_TRUE(tls_client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
+  ASSERT_TRUE(
+      tls_client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
   ASSERT_TRUE(tls_client->Send(MakeTestFrame(0, kW, kH)).ok());
   ASSERT_TRUE(tls_client->CloseStream().ok());
   EXPECT_EQ(c.updates.size(), 1u);
@@ -621,7 +663,8 @@ namespace {
 // sequence into the server.
 TEST(Service, StalledEngineBackPressuresTheClient) {
   auto gate = std::make_shared<absl::Notification>();
-  absl::StatusOr<std::unique_ptr<TwistServer>> started = TwistServer::Start(TestOptions(), FakeFactory(0, gate));
+  absl::StatusOr<std::unique_ptr<TwistServer>> started =
+      TwistServer::Start(TestOptions(), FakeFactory(0, gate));
   ASSERT_TRUE(started.ok());
   auto server = std::move(*started);
   auto client = Connect(server->address());
@@ -673,7 +716,9 @@ namespace {
 
 // A one-message call on any method (gRPC frames unary and streaming calls
 // alike): returns the response bytes, or "" on error.
-std::string RawCall(const std::string& address, const std::string& method, const std::string& request_bytes) {
+std::string RawCall(const std::string& address,
+                    const std::string& method,
+                    const std::string& request_bytes) {
   auto channel = grpc::CreateChannel(address, grpc::InsecureChannelCredentials());
   grpc::GenericStub stub(channel);
   grpc::ClientContext context;
@@ -681,8 +726,10 @@ std::string RawCall(const std::string& address, const std::string& method, const
   const grpc::Slice slice(request_bytes);
   grpc::ByteBuffer request(&slice, 1), response;
   std::promise<grpc::Status> done;
-  stub.UnaryCall(&context, method, grpc::StubOptions(), &request, &response,
-                 [&done](grpc::Status s) { done.set_value(s); });
+  stub.UnaryCall(
+      &context, method, grpc::StubOptions(), &request, &response, [&done](grpc::Status s) {
+        done.set_value(s);
+      });
   if (!done.get_future().get().ok()) return "";
   std::vector<grpc::Slice> slices;
   response.Dump(&slices);
@@ -695,12 +742,14 @@ TEST(Service, ReflectionListsTheServiceAndHealthTurnsNotServingOnShutdown) {
   auto gate = std::make_shared<absl::Notification>();
   ServerOptions options = TestOptions();
   options.drain_timeout_s = 2;
-  absl::StatusOr<std::unique_ptr<TwistServer>> started = TwistServer::Start(options, FakeFactory(0, gate));
+  absl::StatusOr<std::unique_ptr<TwistServer>> started =
+      TwistServer::Start(options, FakeFactory(0, gate));
   ASSERT_TRUE(started.ok());
   auto server = std::move(*started);
   // ServerReflectionRequest{list_services: ""} = field 7, length 0.
   const std::string listing =
-      RawCall(server->address(), "/grpc.reflection.v1alpha.ServerReflection/ServerReflectionInfo",
+      RawCall(server->address(),
+              "/grpc.reflection.v1alpha.ServerReflection/ServerReflectionInfo",
               std::string("\x3a\x00", 2));
   EXPECT_THAT(listing, HasSubstr("twistslam.v1.SlamService"));
   EXPECT_THAT(listing, HasSubstr("grpc.health.v1.Health"));
@@ -710,7 +759,8 @@ TEST(Service, ReflectionListsTheServiceAndHealthTurnsNotServingOnShutdown) {
   auto client = Connect(server->address());
   auto created = client->CreateSession(MakeCreateRequest(kW, kH));
   Collector c;
-  ASSERT_TRUE(client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
+  ASSERT_TRUE(
+      client->OpenStream(created->session_id(), created->resume_token(), c.callback()).ok());
   ASSERT_TRUE(client->Send(MakeTestFrame(0, kW, kH)).ok());
   ASSERT_TRUE(client->Send(MakeTestFrame(1, kW, kH)).ok());
   // Frame 0 is in the (stalled) engine once frame 1 waits in the queue.

@@ -3,7 +3,6 @@
 #pragma once
 
 #include <cstdint>
-
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -14,7 +13,10 @@ namespace twist::testing {
 
 namespace pb = ::twistslam::v1;
 
-inline pb::CreateSessionRequest MakeCreateRequest(int width, int height, double fx = 100.0, double baseline = 0.5) {
+inline pb::CreateSessionRequest MakeCreateRequest(int width,
+                                                  int height,
+                                                  double fx = 100.0,
+                                                  double baseline = 0.5) {
   pb::CreateSessionRequest request;
   request.set_name("test");
   pb::StereoCalibration* c = request.mutable_config()->mutable_calibration();
@@ -40,7 +42,8 @@ inline cv::Mat TestImage(int width, int height, uint64_t seed, int64_t index) {
 // A panoptic mask: road (7000) with one car instance (26001) box.
 inline cv::Mat TestMask(int width, int height) {
   cv::Mat mask(height, width, CV_16UC1, cv::Scalar(7000));
-  cv::rectangle(mask, cv::Rect(width / 4, height / 4, width / 4, height / 4), cv::Scalar(26001), cv::FILLED);
+  cv::rectangle(
+      mask, cv::Rect(width / 4, height / 4, width / 4, height / 4), cv::Scalar(26001), cv::FILLED);
   return mask;
 }
 
