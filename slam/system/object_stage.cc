@@ -284,6 +284,7 @@ void ObjectStage::RunDynamicBa(std::vector<ObjectResult>* results) {
   if (links.empty()) return;
   objects::DynamicBaOptions ba;
   ba.max_iterations = options_.ba_iterations;
+  ba.constrained = config_.options.constrain_objects;
   const auto summary = objects::SolveDynamicBa(&problem, ba);
   if (!summary.ok() || !summary->usable) return;
   objects::ApplyBaToTrackedObjects(problem, links, &tracker_);

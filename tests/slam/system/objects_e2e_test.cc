@@ -93,11 +93,24 @@ E2eRun RunScenario(const std::string& name, int frames, bool constrained = true)
   std::vector<SE3d> est_cameras;
   for (const auto& r : run.results) est_cameras.push_back(r.world_from_camera);
   const auto cam = io::EvaluateCamera(run.gt_cameras, est_cameras);
-  std::printf("[%s, %d frames, %s] camera ATE %.3f m\n%s",
+  std::map<std::string, std::vector<double>> ms;
+  for (const auto& r : run.results) {
+    for (const auto& t : r.timings) ms[t.stage].push_back(t.ms);
+  }
+  std::string timing;
+  for (const char* stage : {"objects", "objects_ba", "total"}) {
+    auto& v = ms[stage];
+    if (v.empty()) continue;
+    std::sort(v.begin(), v.end());
+    timing += std::string(" ") + stage + " median " + std::to_string(v[v.size() / 2]) + " ms p95 " +
+              std::to_string(v[(v.size() - 1) * 95 / 100]) + " ms;";
+  }
+  std::printf("[%s, %d frames, %s] camera ATE %.3f m;%s\n%s",
               name.c_str(),
               frames,
               constrained ? "constrained" : "free",
               cam.ok() ? cam->ate_rmse : -1.0,
+              timing.c_str(),
               io::FormatObjectTable(run.eval).c_str());
   return run;
 }
