@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -221,6 +222,77 @@ TEST(ObjectsEndToEnd, RevoluteDoor) {
   ASSERT_NE(door, nullptr);
   EXPECT_GT(door->tracked_frames, 10);
   EXPECT_LT(door->ate, 1.0);
+}
+
+// Switches, and a resume: objects are not persisted by Save(), so after
+// Load() they restart (new objects) while the camera continues.
+TEST(ObjectsEndToEnd, SwitchesAndResume) {
+  auto scenario = sim::MakeScenario("driving", 7, 8);
+  ASSERT_TRUE(scenario.ok());
+  sim::RenderOptions ro;
+  ro.gray = true;
+  sim::Renderer renderer(scenario->camera, ro);
+  std::vector<StereoFrame> frames;
+  for (int k = 0; k < 8; ++k) {
+    const sim::StereoRender r = renderer.RenderStereo(
+        scenario->scene, scenario->TimeOf(k), scenario->WorldFromCamera(k), {}, {1.0, 0.0, 99});
+    StereoFrame f;
+    f.index = k;
+    f.timestamp_ns = static_cast<int64_t>(std::llround(scenario->TimeOf(k) * 1e9)) + 1000;
+    f.left = r.left;
+    f.right = r.right;
+    f.panoptic = r.panoptic;
+    frames.push_back(f);
+  }
+  auto run = [&](SessionConfig config, int save_at) {
+    config.camera = scenario->camera;
+    auto sys = SlamSystem::Create(config);
+    CHECK(sys.ok()) << sys.status();
+    std::unique_ptr<SlamSystem> s = *std::move(sys);
+    std::vector<FrameResult> out;
+    for (int k = 0; k < static_cast<int>(frames.size()); ++k) {
+      if (k == save_at) {
+        const std::string path = ::testing::TempDir() + "/objects_e2e_resume.bin";
+        CHECK(s->Save(path).ok());
+        auto loaded = SlamSystem::Load(path);
+        CHECK(loaded.ok()) << loaded.status();
+        s = *std::move(loaded);
+      }
+      auto r = s->Process(frames[k]);
+      CHECK(r.ok()) << r.status();
+      out.push_back(*std::move(r));
+    }
+    return out;
+  };
+  auto has_timing = [](const FrameResult& r) {
+    for (const auto& t : r.timings) {
+      if (t.stage == "objects") return true;
+    }
+    return false;
+  };
+  SessionConfig off;
+  off.options.track_objects = false;
+  for (const auto& r : run(off, -1)) {
+    EXPECT_TRUE(r.objects.empty());
+    EXPECT_TRUE(r.cluster_events.empty());
+    EXPECT_FALSE(has_timing(r));
+  }
+  SessionConfig no_masks;
+  no_masks.options.use_masks = false;
+  for (const auto& r : run(no_masks, -1)) EXPECT_TRUE(r.objects.empty());
+
+  const std::vector<FrameResult> full = run(SessionConfig(), -1);
+  const std::vector<FrameResult> resumed = run(SessionConfig(), 4);
+  ASSERT_FALSE(full.back().objects.empty());
+  EXPECT_TRUE(has_timing(full.back()));
+  // Before the resume both runs are identical; after it the objects restart
+  // (all new on the first frame after Load) but are found again.
+  for (int k = 0; k < 4; ++k) {
+    ASSERT_EQ(full[k].objects.size(), resumed[k].objects.size());
+  }
+  ASSERT_FALSE(resumed[4].objects.empty());
+  for (const auto& o : resumed[4].objects) EXPECT_EQ(o.state, ObjectState::kNew);
+  EXPECT_FALSE(resumed.back().objects.empty());
 }
 
 }  // namespace
