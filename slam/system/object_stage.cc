@@ -147,6 +147,7 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
     return s;
   }
   ObjectStageOutput out;
+  Stopwatch sw;
   const geometry::StereoCamera& cam = config_.camera;
   const SE3d world_from_camera = in.camera_from_world.Inverse();
   const map::FrameFeatures& f = *in.features;
@@ -246,7 +247,10 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
     det.joint = JointFor(det, world_from_camera, inside);
     of.detections.push_back(std::move(det));
   }
+  out.timings.push_back({"objects_segments", sw.ElapsedMs()});
+  sw.Restart();
   absl::StatusOr<std::vector<ObjectResult>> results = tracker_.Process(of);
+  out.timings.push_back({"objects_track", sw.ElapsedMs()});
   if (!results.ok()) return results.status();
   out.objects = *std::move(results);
 
@@ -258,7 +262,7 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
            (!window_.empty() && in.timestamp_ns - std::get<1>(window_.front()) > span_ns)) {
       window_.pop_front();
     }
-    Stopwatch sw;
+    sw.Restart();
     RunDynamicBa(&out.objects);
     out.ba_ms = sw.ElapsedMs();
   }

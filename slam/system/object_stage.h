@@ -71,6 +71,9 @@ struct ObjectStageOutput {
   std::vector<ObjectResult> objects;
   std::vector<ClusterEvent> cluster_events;
   double ba_ms = 0.0;
+  // Sub-stages: "objects_segments" (segments, association, planes, joints)
+  // and "objects_track" (ObjectTracker).
+  std::vector<StageTiming> timings;
 };
 
 class ObjectStage {

@@ -433,6 +433,7 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
     if (o.ok()) {
       result.objects = std::move(o->objects);
       result.cluster_events = std::move(o->cluster_events);
+      for (const StageTiming& t : o->timings) result.timings.push_back(t);
       if (o->ba_ms > 0.0) result.timings.push_back({"objects_ba", o->ba_ms});
     } else {
       LOG(ERROR) << "object stage: " << o.status();

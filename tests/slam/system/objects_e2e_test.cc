@@ -99,7 +99,8 @@ E2eRun RunScenario(const std::string& name, int frames, bool constrained = true)
     for (const auto& t : r.timings) ms[t.stage].push_back(t.ms);
   }
   std::string timing;
-  for (const char* stage : {"objects", "objects_ba", "total"}) {
+  for (const char* stage :
+       {"objects", "objects_segments", "objects_track", "objects_ba", "total"}) {
     auto& v = ms[stage];
     if (v.empty()) continue;
     std::sort(v.begin(), v.end());
