@@ -22,6 +22,7 @@
 #include "client/lib/map_ply.h"
 #include "client/lib/slam_client.h"
 #include "client/lib/slam_convert.h"
+#include "slam/common/config_text.h"
 #include "slam/io/json_writer.h"
 #include "slam/io/run_output.h"
 #include "slam/io/sequence.h"
@@ -163,9 +164,14 @@ struct RunConfig {
 };
 
 bool ReadRunConfig(const std::string& path, RunConfig* config, std::string* error) {
+  const std::optional<std::string> text = ReadConfigText(path);
+  if (!text.has_value()) {
+    *error = "cannot read config " + path;
+    return false;
+  }
   cv::FileStorage fs;
   try {
-    if (!fs.open(path, cv::FileStorage::READ)) {
+    if (!fs.open(*text, cv::FileStorage::READ | cv::FileStorage::MEMORY)) {
       *error = "cannot parse config " + path + " (YAML or JSON expected)";
       return false;
     }

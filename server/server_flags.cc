@@ -8,6 +8,7 @@
 #include "absl/strings/match.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
+#include "slam/common/config_text.h"
 
 namespace twist::server {
 namespace {
@@ -195,9 +196,13 @@ absl::Status ReadSlamOptions(const cv::FileNode& node, SlamOptions* o) {
 absl::Status ApplyConfigFile(const std::string& path, ServerOptions* options) {
   if (!std::filesystem::exists(path))
     return absl::NotFoundError(absl::StrCat("--config ", path, ": no such file"));
+  const std::optional<std::string> text = ReadConfigText(path);
+  if (!text.has_value()) {
+    return absl::InvalidArgumentError(absl::StrCat("--config ", path, ": cannot read"));
+  }
   cv::FileStorage fs;
   try {
-    if (!fs.open(path, cv::FileStorage::READ)) {
+    if (!fs.open(*text, cv::FileStorage::READ | cv::FileStorage::MEMORY)) {
       return absl::InvalidArgumentError(
           absl::StrCat("--config ", path, ": cannot parse (YAML or JSON expected)"));
     }
