@@ -75,6 +75,43 @@ absl::Status DoubleFields(const std::string& path,
   return absl::OkStatus();
 }
 
+// The leading "frame track_id class tx ty tz qx qy qz qw" of objects.txt and
+// objects_gt lines (fields 0..9).
+absl::StatusOr<ObjectGtRow> ParseObjectPoseFields(const std::string& path,
+                                                  const TextLine& line,
+                                                  const std::vector<std::string_view>& f) {
+  auto frame = IntField(path, line, f[0], "frame");
+  if (!frame.ok()) return frame.status();
+  auto track = IntField(path, line, f[1], "track_id");
+  if (!track.ok()) return track.status();
+  auto cls = IntField(path, line, f[2], "class");
+  if (!cls.ok()) return cls.status();
+  if (*frame < 0) return LineError(path, line.number, "negative frame index");
+  double d[7];
+  absl::Status s = DoubleFields(path, line, f, 3, 7, d);
+  if (!s.ok()) return s;
+  Eigen::Quaterniond q;
+  s = ParseQuaternion(path, line.number, d[3], d[4], d[5], d[6], &q);
+  if (!s.ok()) return s;
+  ObjectGtRow row;
+  row.frame = *frame;
+  row.track_id = *track;
+  row.class_id = static_cast<int>(*cls);
+  row.world_from_object = geometry::SE3d(q, Eigen::Vector3d(d[0], d[1], d[2]));
+  return row;
+}
+
+void AppendObjectPose(int64_t frame,
+                      int64_t track_id,
+                      int class_id,
+                      const geometry::SE3d& world_from_object,
+                      std::string* out) {
+  char buf[96];
+  std::snprintf(buf, sizeof(buf), "%" PRId64 " %" PRId64 " %d ", frame, track_id, class_id);
+  *out += buf;
+  AppendPose7(world_from_object, out);
+}
+
 }  // namespace
 
 Eigen::Matrix3d NearestRotation(const Eigen::Matrix3d& m) {
@@ -227,25 +264,17 @@ absl::StatusOr<std::vector<ObjectTrackRow>> ReadObjectTracks(const std::string& 
                        "wx wy wz) or 17 (+ instance_id), found " +
                            std::to_string(f.size()));
     }
+    absl::StatusOr<ObjectGtRow> pose = ParseObjectPoseFields(path, line, f);
+    if (!pose.ok()) return pose.status();
+    double twist[6];
+    absl::Status s = DoubleFields(path, line, f, 10, 6, twist);
+    if (!s.ok()) return s;
     ObjectTrackRow row;
-    auto frame = IntField(path, line, f[0], "frame");
-    if (!frame.ok()) return frame.status();
-    auto track = IntField(path, line, f[1], "track_id");
-    if (!track.ok()) return track.status();
-    auto cls = IntField(path, line, f[2], "class");
-    if (!cls.ok()) return cls.status();
-    if (*frame < 0) return LineError(path, line.number, "negative frame index");
-    double d[13];
-    absl::Status s = DoubleFields(path, line, f, 3, 13, d);
-    if (!s.ok()) return s;
-    Eigen::Quaterniond q;
-    s = ParseQuaternion(path, line.number, d[3], d[4], d[5], d[6], &q);
-    if (!s.ok()) return s;
-    row.frame = *frame;
-    row.track_id = *track;
-    row.class_id = static_cast<int>(*cls);
-    row.world_from_object = geometry::SE3d(q, Eigen::Vector3d(d[0], d[1], d[2]));
-    for (int i = 0; i < 6; ++i) row.twist_in_world(i) = d[7 + i];
+    row.frame = pose->frame;
+    row.track_id = pose->track_id;
+    row.class_id = pose->class_id;
+    row.world_from_object = pose->world_from_object;
+    for (int i = 0; i < 6; ++i) row.twist_in_world(i) = twist[i];
     if (f.size() == 17) {
       auto inst = IntField(path, line, f[16], "instance_id");
       if (!inst.ok()) return inst.status();
@@ -260,9 +289,7 @@ std::string FormatObjectTracks(const std::vector<ObjectTrackRow>& rows) {
   std::string out;
   char buf[256];
   for (const ObjectTrackRow& r : rows) {
-    std::snprintf(buf, sizeof(buf), "%" PRId64 " %" PRId64 " %d ", r.frame, r.track_id, r.class_id);
-    out += buf;
-    AppendPose7(r.world_from_object, &out);
+    AppendObjectPose(r.frame, r.track_id, r.class_id, r.world_from_object, &out);
     const geometry::Vector6d& x = r.twist_in_world;
     std::snprintf(
         buf, sizeof(buf), " %.9g %.9g %.9g %.9g %.9g %.9g", x(0), x(1), x(2), x(3), x(4), x(5));
@@ -292,36 +319,17 @@ absl::StatusOr<std::vector<ObjectGtRow>> ReadObjectsGt(const std::string& path) 
                        "expected 10 fields (frame track_id class tx ty tz qx qy qz qw), found " +
                            std::to_string(f.size()));
     }
-    auto frame = IntField(path, line, f[0], "frame");
-    if (!frame.ok()) return frame.status();
-    auto track = IntField(path, line, f[1], "track_id");
-    if (!track.ok()) return track.status();
-    auto cls = IntField(path, line, f[2], "class");
-    if (!cls.ok()) return cls.status();
-    if (*frame < 0) return LineError(path, line.number, "negative frame index");
-    double d[7];
-    absl::Status s = DoubleFields(path, line, f, 3, 7, d);
-    if (!s.ok()) return s;
-    Eigen::Quaterniond q;
-    s = ParseQuaternion(path, line.number, d[3], d[4], d[5], d[6], &q);
-    if (!s.ok()) return s;
-    ObjectGtRow row;
-    row.frame = *frame;
-    row.track_id = *track;
-    row.class_id = static_cast<int>(*cls);
-    row.world_from_object = geometry::SE3d(q, Eigen::Vector3d(d[0], d[1], d[2]));
-    rows.push_back(row);
+    absl::StatusOr<ObjectGtRow> row = ParseObjectPoseFields(path, line, f);
+    if (!row.ok()) return row.status();
+    rows.push_back(*row);
   }
   return rows;
 }
 
 std::string FormatObjectsGt(const std::vector<ObjectGtRow>& rows) {
   std::string out;
-  char buf[96];
   for (const ObjectGtRow& r : rows) {
-    std::snprintf(buf, sizeof(buf), "%" PRId64 " %" PRId64 " %d ", r.frame, r.track_id, r.class_id);
-    out += buf;
-    AppendPose7(r.world_from_object, &out);
+    AppendObjectPose(r.frame, r.track_id, r.class_id, r.world_from_object, &out);
     out += '\n';
   }
   return out;
