@@ -329,6 +329,43 @@ bool CameraTracker::TrackWithMotionModel(map::Frame* frame, map::Map* map) {
 
 namespace {
 
+// EPnP inside RANSAC (OpenCV; deterministic) with the tracker's settings:
+// 300 iterations, 3 px, confidence 0.99. Returns false unless it converges
+// to a finite pose with at least 10 inliers.
+bool SolvePnpRansac(const geometry::StereoCamera& camera,
+                    const std::vector<cv::Point3f>& obj,
+                    const std::vector<cv::Point2f>& img,
+                    geometry::SE3d* camera_from_world,
+                    std::vector<int>* inliers) {
+  const cv::Mat K =
+      (cv::Mat_<double>(3, 3) << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1);
+  cv::Mat rvec, tvec;
+  if (!cv::solvePnPRansac(obj,
+                          img,
+                          K,
+                          cv::noArray(),
+                          rvec,
+                          tvec,
+                          false,
+                          300,
+                          3.0f,
+                          0.99,
+                          *inliers,
+                          cv::SOLVEPNP_EPNP) ||
+      inliers->size() < 10) {
+    return false;
+  }
+  cv::Mat Rcv;
+  cv::Rodrigues(rvec, Rcv);
+  Eigen::Matrix3d R;
+  Eigen::Vector3d t;
+  cv::cv2eigen(Rcv, R);
+  cv::cv2eigen(tvec, t);
+  if (!R.allFinite() || !t.allFinite()) return false;
+  *camera_from_world = geometry::SE3d(Eigen::Quaterniond(R).normalized(), t);
+  return true;
+}
+
 // PnP RANSAC (OpenCV EPnP, deterministic) on the frame's current matches;
 // on success sets the pose and clears the outlier matches.
 bool PoseFromMatchesRansac(const geometry::StereoCamera& camera, map::Frame* frame) {
@@ -345,32 +382,8 @@ bool PoseFromMatchesRansac(const geometry::StereoCamera& camera, map::Frame* fra
     index.push_back(i);
   }
   if (obj.size() < 10) return false;
-  cv::Mat K = (cv::Mat_<double>(3, 3) << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1);
-  cv::Mat rvec, tvec;
   std::vector<int> inliers;
-  if (!cv::solvePnPRansac(obj,
-                          img,
-                          K,
-                          cv::noArray(),
-                          rvec,
-                          tvec,
-                          false,
-                          300,
-                          3.0f,
-                          0.99,
-                          inliers,
-                          cv::SOLVEPNP_EPNP) ||
-      inliers.size() < 10) {
-    return false;
-  }
-  cv::Mat Rcv;
-  cv::Rodrigues(rvec, Rcv);
-  Eigen::Matrix3d R;
-  Eigen::Vector3d t;
-  cv::cv2eigen(Rcv, R);
-  cv::cv2eigen(tvec, t);
-  if (!R.allFinite() || !t.allFinite()) return false;
-  frame->camera_from_world = geometry::SE3d(Eigen::Quaterniond(R).normalized(), t);
+  if (!SolvePnpRansac(camera, obj, img, &frame->camera_from_world, &inliers)) return false;
   std::vector<char> keep(index.size(), 0);
   for (int k : inliers) keep[k] = 1;
   for (size_t k = 0; k < index.size(); ++k) {
@@ -615,8 +628,6 @@ bool CameraTracker::Relocalize(map::Frame* frame, map::Map* map) {
       });
   if (candidates.size() > 5) candidates.resize(5);
 
-  cv::Mat K =
-      (cv::Mat_<double>(3, 3) << camera_.fx, 0, camera_.cx, 0, camera_.fy, camera_.cy, 0, 0, 1);
   for (const Candidate& c : candidates) {
     std::vector<cv::Point3f> obj;
     std::vector<cv::Point2f> img;
@@ -626,31 +637,11 @@ bool CameraTracker::Relocalize(map::Frame* frame, map::Map* map) {
           static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
       img.push_back(f.keypoints[kp].pt);
     }
-    cv::Mat rvec, tvec;
     std::vector<int> inliers;
-    if (!cv::solvePnPRansac(obj,
-                            img,
-                            K,
-                            cv::noArray(),
-                            rvec,
-                            tvec,
-                            false,
-                            300,
-                            3.0f,
-                            0.99,
-                            inliers,
-                            cv::SOLVEPNP_EPNP)) {
-      continue;
-    }
-    if (inliers.size() < 10) continue;
-    cv::Mat Rcv;
-    cv::Rodrigues(rvec, Rcv);
-    Eigen::Matrix3d R;
-    Eigen::Vector3d t;
-    cv::cv2eigen(Rcv, R);
-    cv::cv2eigen(tvec, t);
+    geometry::SE3d camera_from_world;
+    if (!SolvePnpRansac(camera_, obj, img, &camera_from_world, &inliers)) continue;
     frame->ResetMatches();
-    frame->camera_from_world = geometry::SE3d(Eigen::Quaterniond(R).normalized(), t);
+    frame->camera_from_world = camera_from_world;
     for (int k : inliers) {
       const auto& [kp, pid] = c.matches[k];
       frame->SetMatch(kp, pid, map->point(pid)->p_in_world);
