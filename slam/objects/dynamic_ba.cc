@@ -154,23 +154,67 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
   optimization::SE3Manifold se3_manifold;
   std::vector<std::unique_ptr<ceres::Manifold>> manifolds;  // outlive the solve
 
-  // Parameter storage.
+  // Parameter storage: every block lives in ONE buffer, laid out in a fixed
+  // logical order (static points, each object's points, each object's
+  // corrections ξ̃ and poses, keyframes). Ceres' ParameterBlockOrdering keeps
+  // each elimination group as a std::set<double*>, i.e. ordered by address;
+  // with one buffer in logical order the address order IS the logical order,
+  // independent of the heap's state, so identical problems give bit-identical
+  // solutions (the synchronous engine relies on it). Nothing else below
+  // depends on addresses: residual blocks are added in problem order.
   const size_t nk = problem->keyframes.size();
-  std::vector<std::array<double, 7>> kf_params(nk);
-  for (size_t i = 0; i < nk; ++i)
-    problem->keyframes[i].camera_from_world.ToParams(kf_params[i].data());
-  std::vector<std::array<double, 3>> point_params(problem->points.size());
+  size_t arena_size = 3 * problem->points.size() + 7 * nk;
+  for (const BaObject& obj : problem->objects)
+    arena_size += 3 * obj.points_in_object.size() + 13 * obj.frames.size();
+  std::vector<double> arena(arena_size, 0.0);  // never resized below
+  size_t arena_used = 0;
+  auto take = [&](size_t n) {
+    CHECK_LE(arena_used + n, arena.size());
+    double* x = arena.data() + arena_used;
+    arena_used += n;
+    return x;
+  };
+  std::vector<double*> point_params(problem->points.size());
   for (size_t j = 0; j < problem->points.size(); ++j) {
-    Eigen::Map<Eigen::Vector3d>(point_params[j].data()) = problem->points[j].point_in_world;
+    point_params[j] = take(3);
+    Eigen::Map<Eigen::Vector3d> x(point_params[j]);
+    x = problem->points[j].point_in_world;
   }
   struct ObjectParams {
-    std::vector<std::array<double, 6>> twist;
-    std::vector<std::array<double, 7>> pose;
-    std::vector<std::array<double, 3>> points;
+    std::vector<double*> twist;
+    std::vector<double*> pose;
+    std::vector<double*> points;
     std::vector<int> frame_of_keyframe;
     Matrix6d projector;
   };
   std::vector<ObjectParams> obj_params(problem->objects.size());
+  for (size_t k = 0; k < problem->objects.size(); ++k) {
+    const BaObject& obj = problem->objects[k];
+    ObjectParams& op = obj_params[k];
+    op.points.resize(obj.points_in_object.size());
+    for (size_t j = 0; j < obj.points_in_object.size(); ++j) {
+      op.points[j] = take(3);
+      Eigen::Map<Eigen::Vector3d> x(op.points[j]);
+      x = obj.points_in_object[j];
+    }
+  }
+  for (size_t k = 0; k < problem->objects.size(); ++k) {
+    const BaObject& obj = problem->objects[k];
+    ObjectParams& op = obj_params[k];
+    op.twist.resize(obj.frames.size());
+    op.pose.resize(obj.frames.size());
+    for (size_t f = 0; f < obj.frames.size(); ++f) op.twist[f] = take(6);  // ξ̃ = 0
+    for (size_t f = 0; f < obj.frames.size(); ++f) {
+      op.pose[f] = take(7);
+      obj.frames[f].world_from_object.ToParams(op.pose[f]);
+    }
+  }
+  std::vector<double*> kf_params(nk);
+  for (size_t i = 0; i < nk; ++i) {
+    kf_params[i] = take(7);
+    problem->keyframes[i].camera_from_world.ToParams(kf_params[i]);
+  }
+  CHECK_EQ(arena_used, arena.size());
 
   bool any_fixed = false;
   for (const BaKeyframe& kf : problem->keyframes) any_fixed |= kf.fixed;
@@ -179,7 +223,7 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
     if (problem->keyframes[i].timestamp_ns < problem->keyframes[oldest].timestamp_ns) oldest = i;
   }
   auto add_keyframe = [&](int i) {
-    double* x = kf_params[static_cast<size_t>(i)].data();
+    double* x = kf_params[static_cast<size_t>(i)];
     if (ceres_problem.HasParameterBlock(x)) return x;
     ceres_problem.AddParameterBlock(x, 7, &se3_manifold);
     const bool fix = problem->keyframes[static_cast<size_t>(i)].fixed ||
@@ -192,7 +236,7 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
   // Static terms.
   for (const BaObservation& o : problem->observations) {
     double* x = add_keyframe(o.keyframe);
-    double* p = point_params[static_cast<size_t>(o.point)].data();
+    double* p = point_params[static_cast<size_t>(o.point)];
     const double s = 1.0 / o.sigma_px;
     ceres::CostFunction* cost;
     if (o.u_right >= 0.0) {
@@ -217,16 +261,9 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
     const BaObject& obj = problem->objects[k];
     ObjectParams& op = obj_params[k];
     op.projector = options.constrained ? obj.world_projector : Matrix6d::Identity();
-    op.twist.assign(obj.frames.size(), {0, 0, 0, 0, 0, 0});
-    op.pose.resize(obj.frames.size());
     op.frame_of_keyframe.assign(nk, -1);
     for (size_t f = 0; f < obj.frames.size(); ++f) {
-      obj.frames[f].world_from_object.ToParams(op.pose[f].data());
       op.frame_of_keyframe[static_cast<size_t>(obj.frames[f].keyframe)] = static_cast<int>(f);
-    }
-    op.points.resize(obj.points_in_object.size());
-    for (size_t j = 0; j < obj.points_in_object.size(); ++j) {
-      Eigen::Map<Eigen::Vector3d>(op.points[j].data()) = obj.points_in_object[j];
     }
     // MAD scale of the object's initial residuals (paper: Σ from the MAD).
     double mad_sigma = 0.0;
@@ -246,9 +283,9 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
     for (const BaObservation& o : obj.observations) {
       const int f = op.frame_of_keyframe[static_cast<size_t>(o.keyframe)];
       double* x = add_keyframe(o.keyframe);
-      double* xi = op.twist[static_cast<size_t>(f)].data();
-      double* pose = op.pose[static_cast<size_t>(f)].data();
-      double* p = op.points[static_cast<size_t>(o.point)].data();
+      double* xi = op.twist[static_cast<size_t>(f)];
+      double* pose = op.pose[static_cast<size_t>(f)];
+      double* p = op.points[static_cast<size_t>(o.point)];
       const double s = 1.0 / (options.mad_sigma_for_dynamic ? mad_sigma : o.sigma_px);
       ceres::CostFunction* cost;
       if (o.u_right >= 0.0) {
@@ -278,8 +315,8 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
         double* blocks[6];
         for (int d = -1; d <= 1; ++d) {
           const size_t g = f + static_cast<size_t>(d + 1) - 1;
-          blocks[2 * (d + 1)] = op.twist[g].data();
-          blocks[2 * (d + 1) + 1] = op.pose[g].data();
+          blocks[2 * (d + 1)] = op.twist[g];
+          blocks[2 * (d + 1) + 1] = op.pose[g];
         }
         ceres::CostFunction* cost =
             options.use_autodiff
@@ -312,7 +349,7 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
       subspace = manifolds.back().get();
     }
     for (size_t f = 0; f < obj.frames.size(); ++f) {
-      double* xi = op.twist[f].data();
+      double* xi = op.twist[f];
       if (!ceres_problem.HasParameterBlock(xi) || ceres_problem.IsParameterBlockConstant(xi))
         continue;
       if (basis.cols() == 0) {
@@ -338,23 +375,16 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
   solver_options.logging_type = ceres::SILENT;
   // Schur elimination order: points first (static and dynamic), then poses.
   auto* ordering = new ceres::ParameterBlockOrdering;
-  for (auto& p : point_params) {
-    if (ceres_problem.HasParameterBlock(p.data())) ordering->AddElementToGroup(p.data(), 0);
+  auto add_to_group = [&](double* x, int group) {
+    if (ceres_problem.HasParameterBlock(x)) ordering->AddElementToGroup(x, group);
+  };
+  for (double* p : point_params) add_to_group(p, 0);
+  for (const ObjectParams& op : obj_params) {
+    for (double* p : op.points) add_to_group(p, 0);
+    for (double* t : op.twist) add_to_group(t, 1);
+    for (double* p : op.pose) add_to_group(p, 1);
   }
-  for (auto& op : obj_params) {
-    for (auto& p : op.points) {
-      if (ceres_problem.HasParameterBlock(p.data())) ordering->AddElementToGroup(p.data(), 0);
-    }
-    for (auto& t : op.twist) {
-      if (ceres_problem.HasParameterBlock(t.data())) ordering->AddElementToGroup(t.data(), 1);
-    }
-    for (auto& p : op.pose) {
-      if (ceres_problem.HasParameterBlock(p.data())) ordering->AddElementToGroup(p.data(), 1);
-    }
-  }
-  for (auto& k : kf_params) {
-    if (ceres_problem.HasParameterBlock(k.data())) ordering->AddElementToGroup(k.data(), 1);
-  }
+  for (double* k : kf_params) add_to_group(k, 1);
   if (ordering->NumElements() > 0 && ordering->GroupSize(0) > 0) {
     solver_options.linear_solver_ordering.reset(ordering);
   } else {
@@ -372,20 +402,20 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
 
   // Write back.
   for (size_t i = 0; i < nk; ++i) {
-    problem->keyframes[i].camera_from_world = SE3d::FromParams(kf_params[i].data());
+    problem->keyframes[i].camera_from_world = SE3d::FromParams(kf_params[i]);
   }
   for (size_t j = 0; j < problem->points.size(); ++j) {
-    problem->points[j].point_in_world = Eigen::Map<const Eigen::Vector3d>(point_params[j].data());
+    problem->points[j].point_in_world = Eigen::Map<const Eigen::Vector3d>(point_params[j]);
   }
   for (size_t k = 0; k < problem->objects.size(); ++k) {
     BaObject& obj = problem->objects[k];
     const ObjectParams& op = obj_params[k];
     for (size_t f = 0; f < obj.frames.size(); ++f) {
-      const Vector6d xi = op.projector * Eigen::Map<const Vector6d>(op.twist[f].data());
+      const Vector6d xi = op.projector * Eigen::Map<const Vector6d>(op.twist[f]);
       obj.frames[f].world_from_object = SE3d::Exp(xi) * obj.frames[f].world_from_object;
     }
     for (size_t j = 0; j < obj.points_in_object.size(); ++j) {
-      obj.points_in_object[j] = Eigen::Map<const Eigen::Vector3d>(op.points[j].data());
+      obj.points_in_object[j] = Eigen::Map<const Eigen::Vector3d>(op.points[j]);
     }
   }
   return summary;
