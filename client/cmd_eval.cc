@@ -32,7 +32,7 @@ int EvalCommand(int argc, char** argv) {
                 "N",
                 "visible-coverage counts frames where the object shows >= N mask pixels",
                 /*required=*/false,
-                "200")
+                "2000")
       .AddFlag("no-mask-pixels", "skip reading the masks (no visible-coverage figure)")
       .AddValue("write-gt-run",
                 "DIR",
@@ -48,7 +48,7 @@ int EvalCommand(int argc, char** argv) {
   io::RunEvalOptions options;
   const std::optional<double> moving = args->GetDouble("moving-speed", 0.5);
   if (!moving || *moving < 0) return Fail("eval", "--moving-speed must be a number >= 0", 2);
-  const std::optional<int64_t> min_px = args->GetInt("min-mask-pixels", 200);
+  const std::optional<int64_t> min_px = args->GetInt("min-mask-pixels", 2000);
   if (!min_px || *min_px < 0) return Fail("eval", "--min-mask-pixels must be an integer >= 0", 2);
   options.objects.moving_speed_mps = *moving;
   options.objects.min_mask_pixels = *min_px;

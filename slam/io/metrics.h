@@ -71,7 +71,7 @@ struct ObjectEvalOptions {
   double moving_speed_mps = 0.5;  // moving when the mean GT speed exceeds this
   // Frames where the object shows at least this many mask pixels count for
   // the visible-coverage variant (needs pixel counts).
-  int64_t min_mask_pixels = 200;
+  int64_t min_mask_pixels = 2000;  // issue #5: coverage over frames with >= 2000 px
   // Fallback association without instance ids: nearest GT box centre at the
   // track's first frame within this distance.
   double max_match_distance_m = 3.0;

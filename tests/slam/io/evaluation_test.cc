@@ -93,13 +93,21 @@ void WriteRun(const std::string& dir, double extra_forward_per_frame, int skip_o
   ASSERT_TRUE(out.Write(dir, RunInfo()).ok());
 }
 
+// The toy masks are small: count a frame as visible from 100 px (the CLI
+// default, 2000 px, is meant for full-size frames).
+RunEvalOptions SmallMaskOptions() {
+  RunEvalOptions options;
+  options.objects.min_mask_pixels = 100;
+  return options;
+}
+
 TEST(Evaluation, GroundTruthAgainstItselfGivesZeros) {
   ScratchDir dir;
   MakeDataset(dir / "data");
   WriteRun(dir / "run", 0.0, kN);
   auto seq = OpenSequence(dir / "data", "kitti-tracking", "0000");
   ASSERT_TRUE(seq.ok()) << seq.status();
-  auto eval = EvaluateRunDirectory(**seq, dir / "run", RunEvalOptions());
+  auto eval = EvaluateRunDirectory(**seq, dir / "run", SmallMaskOptions());
   ASSERT_TRUE(eval.ok()) << eval.status();
   ASSERT_TRUE(eval->camera.has_value());
   EXPECT_NEAR(eval->camera->rpe_t, 0, 1e-7);
@@ -132,7 +140,7 @@ TEST(Evaluation, KnownCameraDriftAndPartialCoverage) {
   WriteRun(dir / "run", 0.02, 9);  // 2 cm extra per frame; object 6 lost from frame 9
   auto seq = OpenSequence(dir / "data", "kitti-tracking", "0000");
   ASSERT_TRUE(seq.ok()) << seq.status();
-  auto eval = EvaluateRunDirectory(**seq, dir / "run", RunEvalOptions());
+  auto eval = EvaluateRunDirectory(**seq, dir / "run", SmallMaskOptions());
   ASSERT_TRUE(eval.ok()) << eval.status();
   EXPECT_NEAR(eval->camera->rpe_t, 0.02, 1e-6);
   EXPECT_DOUBLE_EQ(eval->objects->objects[1].coverage, 9.0 / 12.0);
