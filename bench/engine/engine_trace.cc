@@ -101,6 +101,33 @@ int main(int argc, char** argv) {
       }
     }
   }
+  if (getenv("CMPSUBPIX")) {
+    // Mean disparity difference of the two sub-pixel methods on the same matches.
+    features::OrbExtractor orb(features::OrbOptions{});
+    for (int i0 : {5, 20, 35}) {
+      auto a = (*seq)->ReadFrame(i0);
+      std::vector<cv::KeyPoint> kl, kr;
+      cv::Mat dl, dr;
+      std::vector<cv::Mat> ll, lr;
+      orb.Extract(a->left, cv::Mat(), &kl, &dl, &ll);
+      orb.Extract(a->right, cv::Mat(), &kr, &dr, &lr);
+      features::StereoMatchOptions o0, o1;
+      o1.subpixel = features::SubpixelMethod::kSsdGaussNewton;
+      auto s0 = features::MatchStereo(config.camera, orb.pyramid(), kl, dl, kr, dr, ll, lr, o0);
+      auto s1 = features::MatchStereo(config.camera, orb.pyramid(), kl, dl, kr, dr, ll, lr, o1);
+      double sum[8] = {0}, n[8] = {0};
+      for (size_t q = 0; q < kl.size(); ++q) {
+        if (s0.depth[q] <= 0 || s1.depth[q] <= 0) continue;
+        const double dd = s0.u_right[q] - s1.u_right[q];  // disparity(ssd) - disparity(sad)
+        if (std::abs(dd) > 1.0) continue;
+        sum[kl[q].octave] += dd;
+        n[kl[q].octave] += 1;
+      }
+      printf("frame %d: disparity(SSD+GN) - disparity(SAD parabola) per level:", i0);
+      for (int l = 0; l < 8; ++l) printf(" %.3f(%d)", n[l] ? sum[l] / n[l] : 0.0, (int)n[l]);
+      printf("\n");
+    }
+  }
   if (getenv("DISPBIAS")) {
     // Stereo disparity vs the disparity of a two-view triangulation with the
     // ground-truth motion over 2 frames (independent of the stereo matcher).
@@ -159,7 +186,7 @@ int main(int argc, char** argv) {
     std::vector<cv::KeyPoint> k0, k1;
     cv::Mat d0, d1;
     const int gap = getenv("GAP") ? atoi(getenv("GAP")) : 1;
-    for (int i = 0; i + gap < 25; i += gap) {
+    for (int i = 0; i + gap < 51; i += gap) {
       auto a = (*seq)->ReadFrame(i);
       auto b = (*seq)->ReadFrame(i + gap);
       orb.Extract(a->left, cv::Mat(), &k0, &d0);
@@ -180,12 +207,22 @@ int main(int argc, char** argv) {
       // R maps cam0 -> cam1 coordinates: cam1_from_cam0. GT: (gt0^-1 gt1)^-1 = cam1_from_cam0.
       geometry::SO3d Rg = (gt[i].Inverse() * gt[i + gap]).Inverse().so3();
       Eigen::Vector3d err = (Rg.Inverse() * geometry::SO3d(Re)).Log() * 180 / M_PI;
-      printf("E %2d inliers %4d  rot err vs gt (%.4f %.4f %.4f) deg\n",
-             i,
-             inl,
-             err.x(),
-             err.y(),
-             err.z());
+      // Translation direction: t is cam1_from_cam0's translation (unit);
+      // the GT one is (gt_i^-1 gt_{i+gap})^-1's translation.
+      const Eigen::Vector3d tg = (gt[i].Inverse() * gt[i + gap]).Inverse().translation();
+      const Eigen::Vector3d te(t.at<double>(0), t.at<double>(1), t.at<double>(2));
+      printf(
+          "E %2d inliers %4d  rot err vs gt (%.4f %.4f %.4f) deg  t dir x/z %.5f gt %.5f y/z %.5f "
+          "gt %.5f\n",
+          i,
+          inl,
+          err.x(),
+          err.y(),
+          err.z(),
+          te.x() / te.z(),
+          tg.x() / tg.z(),
+          te.y() / te.z(),
+          tg.y() / tg.z());
     }
   }
   auto sys = SlamSystem::Create(config);
@@ -199,6 +236,24 @@ int main(int argc, char** argv) {
   }
   auto m = io::EvaluateCamera((*seq)->gt_world_from_camera(), est);
   printf("RPE_t %.4f RPE_R %.4f ATE %.4f\n", m->rpe_t, m->rpe_r_deg, m->ate_rmse);
+  {
+    // Path length ratio (scale) and the mean relative translation error.
+    const auto& g = (*seq)->gt_world_from_camera();
+    double le = 0, lg = 0;
+    Eigen::Vector3d mean_dt = Eigen::Vector3d::Zero();
+    for (size_t i = 0; i + 1 < est.size(); ++i) {
+      const geometry::SE3d ge = g[i].Inverse() * g[i + 1], ee = est[i].Inverse() * est[i + 1];
+      le += ee.translation().norm();
+      lg += ge.translation().norm();
+      mean_dt += (ge.Inverse() * ee).translation();
+    }
+    mean_dt /= static_cast<double>(est.size() - 1);
+    printf("path length est/gt %.5f, mean relative translation error (%.4f %.4f %.4f)\n",
+           le / lg,
+           mean_dt.x(),
+           mean_dt.y(),
+           mean_dt.z());
+  }
   {
     // The same metrics from frame 12 on (KITTI 06's ground truth is visibly
     // interpolated over frames 0-11, see the ESSENTIAL=1 check).

@@ -5,8 +5,91 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <vector>
 
 namespace twist::features {
+namespace {
+
+// Mean of the (2w+1)² patch of `img` centred on integer (x, y).
+double PatchMean(const cv::Mat& img, int x, int y, int w) {
+  int sum = 0;
+  for (int dy = -w; dy <= w; ++dy) {
+    const uint8_t* row = img.ptr<uint8_t>(y + dy);
+    for (int dx = -w; dx <= w; ++dx) sum += row[x + dx];
+  }
+  return static_cast<double>(sum) / ((2 * w + 1) * (2 * w + 1));
+}
+
+// SSD of the zero-mean patches of `il` at (xl, y) and `ir` at (xr, y).
+double ZeroMeanSsd(
+    const cv::Mat& il, int xl, double mean_l, const cv::Mat& ir, int xr, int y, int w) {
+  const double mean_r = PatchMean(ir, xr, y, w);
+  double ssd = 0.0;
+  for (int dy = -w; dy <= w; ++dy) {
+    const uint8_t* pl = il.ptr<uint8_t>(y + dy) + xl;
+    const uint8_t* pr = ir.ptr<uint8_t>(y + dy) + xr;
+    for (int dx = -w; dx <= w; ++dx) {
+      const double e = (pl[dx] - mean_l) - (pr[dx] - mean_r);
+      ssd += e * e;
+    }
+  }
+  return ssd;
+}
+
+// Gauss-Newton on the horizontal position `x` of the right patch (row y):
+// minimises the SSD of zero-mean patches, the right one sampled bilinearly
+// with central-difference gradients. False when it leaves the image or the
+// patch has no horizontal gradient.
+bool RefineShiftGaussNewton(const cv::Mat& il,
+                            int xl,
+                            const cv::Mat& ir,
+                            int y,
+                            int w,
+                            int iterations,
+                            std::vector<double>* scratch,
+                            double* x) {
+  const int side = 2 * w + 1, n = side * side;
+  scratch->resize(3 * static_cast<size_t>(n));
+  double* left = scratch->data();
+  double* val = left + n;
+  double* grad = val + n;
+  const double mean_l = PatchMean(il, xl, y, w);
+  for (int dy = -w, k = 0; dy <= w; ++dy) {
+    const uint8_t* pl = il.ptr<uint8_t>(y + dy) + xl;
+    for (int dx = -w; dx <= w; ++dx, ++k) left[k] = pl[dx] - mean_l;
+  }
+  for (int it = 0; it < iterations; ++it) {
+    const int x0 = static_cast<int>(std::floor(*x));
+    const double t = *x - x0;
+    if (x0 - w - 1 < 0 || x0 + w + 2 >= ir.cols) return false;
+    double mean_v = 0.0, mean_g = 0.0;
+    for (int dy = -w, k = 0; dy <= w; ++dy) {
+      const uint8_t* row = ir.ptr<uint8_t>(y + dy);
+      for (int dx = -w; dx <= w; ++dx, ++k) {
+        const int xi = x0 + dx;
+        val[k] = (1.0 - t) * row[xi] + t * row[xi + 1];
+        grad[k] = 0.5 * ((1.0 - t) * (row[xi + 1] - row[xi - 1]) + t * (row[xi + 2] - row[xi]));
+        mean_v += val[k];
+        mean_g += grad[k];
+      }
+    }
+    mean_v /= n;
+    mean_g /= n;
+    double h = 0.0, g = 0.0;
+    for (int k = 0; k < n; ++k) {
+      const double gk = grad[k] - mean_g;
+      h += gk * gk;
+      g += gk * ((val[k] - mean_v) - left[k]);
+    }
+    if (!(h > 1e-9)) return false;
+    const double step = std::clamp(-g / h, -0.5, 0.5);
+    *x += step;
+    if (std::abs(step) < 1e-3) break;
+  }
+  return true;
+}
+
+}  // namespace
 
 StereoMatchResult MatchStereo(const geometry::StereoCamera& camera,
                               const ScalePyramid& pyramid,
@@ -40,6 +123,7 @@ StereoMatchResult MatchStereo(const geometry::StereoCamera& camera,
   std::vector<std::pair<int, int>> sad_of_match;  // (SAD, left index)
   sad_of_match.reserve(n);
   std::vector<float> sad_values(2 * L + 1);
+  std::vector<double> scratch;
 
   for (int i = 0; i < n; ++i) {
     const cv::KeyPoint& kl = left_kps[i];
@@ -96,13 +180,32 @@ StereoMatchResult MatchStereo(const geometry::StereoCamera& camera,
       }
     }
     if (best_inc == -L || best_inc == L) continue;  // minimum on the border
-    const float d1 = sad_values[best_inc + L - 1];
-    const float d2 = sad_values[best_inc + L];
-    const float d3 = sad_values[best_inc + L + 1];
+    float d1 = sad_values[best_inc + L - 1];
+    float d2 = sad_values[best_inc + L];
+    float d3 = sad_values[best_inc + L + 1];
+    const bool ssd = options.subpixel == SubpixelMethod::kSsdGaussNewton;
+    if (ssd) {
+      // Zero-mean SSD is about quadratic around its minimum, so the parabola
+      // fits it; SAD is V-shaped and pulls the vertex to integers.
+      const double mean_l = PatchMean(il, su, sv, w);
+      const int xr = sur + best_inc;
+      d1 = static_cast<float>(ZeroMeanSsd(il, su, mean_l, ir, xr - 1, sv, w));
+      d2 = static_cast<float>(ZeroMeanSsd(il, su, mean_l, ir, xr, sv, w));
+      d3 = static_cast<float>(ZeroMeanSsd(il, su, mean_l, ir, xr + 1, sv, w));
+    }
     const float denom = 2.f * (d1 + d3 - 2.f * d2);
     if (denom <= 0.f) continue;
-    const float delta = (d1 - d3) / denom;
+    float delta = (d1 - d3) / denom;
     if (delta < -1.f || delta > 1.f) continue;
+    if (ssd) {
+      double x = sur + best_inc + delta;
+      if (!RefineShiftGaussNewton(
+              il, su, ir, sv, w, options.gauss_newton_iterations, &scratch, &x)) {
+        continue;
+      }
+      if (std::abs(x - (sur + best_inc)) > 1.5) continue;
+      delta = static_cast<float>(x - (sur + best_inc));
+    }
     const float ur = (static_cast<float>(sur + best_inc) + delta + 0.5f) * sx - 0.5f;
     float disparity = ul - ur;
     if (disparity < 0.f || disparity >= max_disparity) continue;

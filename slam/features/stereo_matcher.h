@@ -5,8 +5,9 @@
 // [0, bf / min_depth] and a pyramid level within ±1; the best Hamming distance
 // wins if below max_descriptor_distance. The right coordinate is then refined
 // by SAD block matching on the pyramid level (window 2w+1, search ±L) and a
-// parabola through the three SAD values around the minimum. Matches with a
-// SAD far above the median (robust scale) are rejected.
+// parabola through the three SAD values around the minimum (or the zero-mean
+// SSD refinement of SubpixelMethod). Matches with a SAD far above the median
+// (robust scale) are rejected.
 #pragma once
 
 #include <opencv2/core.hpp>
@@ -17,6 +18,18 @@
 
 namespace twist::features {
 
+// Sub-pixel refinement of the block match.
+enum class SubpixelMethod {
+  // Parabola through the SAD of centre-normalised patches at the integer
+  // minimum and its two neighbours (ORB-SLAM2).
+  kSadParabola,
+  // Parabola through the SSD of zero-mean patches, then Gauss-Newton on the
+  // continuous shift (right patch sampled bilinearly). On rendered scenes
+  // with exact depth it halves the disparity error (level 0: mean |e| 0.30
+  // -> 0.15 px) and removes pixel locking; see docs/math.md.
+  kSsdGaussNewton,
+};
+
 struct StereoMatchOptions {
   int max_descriptor_distance = 75;  // (TH_HIGH + TH_LOW) / 2 of ORB-SLAM
   int sad_half_window = 5;           // 11x11 patches
@@ -24,6 +37,8 @@ struct StereoMatchOptions {
   double row_band_sigmas = 2.0;      // row band half-height per level scale
   double min_depth_baselines = 1.0;  // closest depth considered, in baselines
   double sad_median_factor = 2.1;    // reject SAD > factor × median SAD
+  SubpixelMethod subpixel = SubpixelMethod::kSadParabola;
+  int gauss_newton_iterations = 5;
 };
 
 struct StereoMatchResult {

@@ -315,4 +315,28 @@ std::shared_ptr<FrameFeatures> FinalizeFeatures(FrameFeatures f, int width, int 
   return std::make_shared<FrameFeatures>(std::move(f));
 }
 
+std::shared_ptr<const FrameFeatures> WithDisparityOffset(
+    const std::shared_ptr<const FrameFeatures>& features,
+    const geometry::StereoCamera& camera,
+    float offset) {
+  if (features == nullptr || features->disparity_offset == offset) return features;
+  auto out = std::make_shared<FrameFeatures>(*features);
+  const float shift = offset - features->disparity_offset;
+  const float bf = static_cast<float>(camera.bf());
+  for (int i = 0; i < out->size(); ++i) {
+    if (out->u_right[i] < 0.f) continue;
+    const float u = out->keypoints[i].pt.x;
+    const float disparity = u - out->u_right[i] + shift;
+    if (disparity <= 0.f || u - disparity < 0.f) {
+      out->u_right[i] = -1.f;
+      out->depth[i] = -1.f;
+      continue;
+    }
+    out->u_right[i] = u - disparity;
+    out->depth[i] = bf / disparity;
+  }
+  out->disparity_offset = offset;
+  return out;
+}
+
 }  // namespace twist::map

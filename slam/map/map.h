@@ -35,6 +35,9 @@ struct FrameFeatures {
   std::vector<int32_t> labels;          // panoptic id under the keypoint (0 none)
   std::vector<uint8_t> is_static;       // usable by the static (camera) pipeline
   features::KeypointGrid grid;
+  // Disparity offset (px) already added to every disparity in u_right/depth
+  // (see Map::disparity_offset); 0 for features as measured.
+  float disparity_offset = 0.f;
 
   int size() const { return static_cast<int>(keypoints.size()); }
   const uint8_t* descriptor(int i) const { return descriptors.ptr<uint8_t>(i); }
@@ -148,6 +151,16 @@ class Map {
     next_kf_id_ = kf;
     next_point_id_ = point;
   }
+  // Self-calibrated stereo disparity offset (px): true disparity = measured
+  // disparity + offset, i.e. a horizontal principal-point difference between
+  // the rectified cameras. Estimated by the local bundle adjustment.
+  double disparity_offset() const { return disparity_offset_; }
+  void set_disparity_offset(double offset) {
+    disparity_offset_ = offset;
+    ++disparity_offset_updates_;
+  }
+  int disparity_offset_updates() const { return disparity_offset_updates_; }
+
   // Restore path: inserts objects with given ids.
   KeyFrame* InsertKeyFrame(std::unique_ptr<KeyFrame> kf);
   MapPoint* InsertPoint(std::unique_ptr<MapPoint> p);
@@ -158,6 +171,8 @@ class Map {
   mutable std::mutex mutex_;
   std::map<int64_t, std::unique_ptr<KeyFrame>> keyframes_;
   std::map<int64_t, std::unique_ptr<MapPoint>> points_;
+  double disparity_offset_ = 0.0;
+  int disparity_offset_updates_ = 0;
   int64_t next_kf_id_ = 0;
   int64_t next_point_id_ = 0;
 };
@@ -171,5 +186,13 @@ geometry::SE3d CanonicalPose(const geometry::SE3d& pose);
 // Builds FrameFeatures' grid and returns a shared pointer (helper for tests
 // and the system).
 std::shared_ptr<FrameFeatures> FinalizeFeatures(FrameFeatures features, int width, int height);
+
+// `features` with its disparities shifted so that the applied offset becomes
+// `offset` (px): u_right and depth recomputed; stereo matches whose corrected
+// disparity is not positive become monocular.
+std::shared_ptr<const FrameFeatures> WithDisparityOffset(
+    const std::shared_ptr<const FrameFeatures>& features,
+    const geometry::StereoCamera& camera,
+    float offset);
 
 }  // namespace twist::map

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <climits>
 #include <cmath>
+#include <cstdlib>
 #include <map>
 #include <set>
 
@@ -48,6 +49,41 @@ class AbortCallback : public ceres::IterationCallback {
 
  private:
   const std::atomic<bool>* abort_;
+};
+
+// Stereo reprojection with the disparity offset as a parameter: the measured
+// right coordinate `observed.z()` had `applied` px of offset added to its
+// disparity; the model's right coordinate is u - bf/z, so the measurement
+// with the current offset o is observed.z() + applied - o.
+struct OffsetStereoReprojection {
+  OffsetStereoReprojection(const geometry::StereoCamera& camera,
+                           const Eigen::Vector3d& observed,
+                           double applied,
+                           double sqrt_information)
+      : inner(camera,
+              Eigen::Vector3d(observed.x(), observed.y(), observed.z() + applied),
+              sqrt_information),
+        s(sqrt_information) {}
+
+  template <typename T>
+  bool operator()(const T* pose, const T* point, const T* offset, T* residuals) const {
+    if (!inner(pose, point, residuals)) return false;
+    residuals[2] -= T(s) * offset[0];
+    return true;
+  }
+
+  optimization::ReprojectionFunctor<3> inner;
+  double s;
+};
+
+struct OffsetPrior {
+  double mean;
+  double inv_sigma;
+  template <typename T>
+  bool operator()(const T* offset, T* residual) const {
+    residual[0] = T(inv_sigma) * (offset[0] - T(mean));
+    return true;
+  }
 };
 
 }  // namespace
@@ -436,7 +472,10 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
     int kp_index;
     Eigen::Vector3d uvr;  // u, v, u_right (< 0 mono)
     int level;
+    double applied_offset;  // disparity offset already in u_right
   };
+  double offset = 0.0;
+  double prior_mean = 0.0, prior_sigma = 1.0;
   std::map<int64_t, std::array<double, 7>> poses;
   std::set<int64_t> fixed;
   std::map<int64_t, Eigen::Vector3d> points;
@@ -446,6 +485,10 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
     std::lock_guard<std::mutex> lock(map->mutex());
     map::KeyFrame* kf = map->keyframe(kf_id);
     if (kf == nullptr) return 0;
+    offset = map->disparity_offset();
+    prior_mean = offset;
+    prior_sigma = map->disparity_offset_updates() == 0 ? options_.disparity_offset_prior_sigma
+                                                       : options_.disparity_offset_step_sigma;
     std::vector<int64_t> local{kf_id};
     for (const auto& [nb, w] : kf->connections) {
       if (map->keyframe(nb) != nullptr) local.push_back(nb);
@@ -487,7 +530,12 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
         // far u_right helped (driving 60 frames ATE 0.010 -> 0.022 m).
         const bool close = k->features->depth[idx] > 0.f && k->features->depth[idx] <= close_depth;
         const double u_right = close ? k->features->u_right[idx] : -1.0;
-        obs.push_back({oid, pid, idx, Eigen::Vector3d(kp.pt.x, kp.pt.y, u_right), kp.octave});
+        obs.push_back({oid,
+                       pid,
+                       idx,
+                       Eigen::Vector3d(kp.pt.x, kp.pt.y, u_right),
+                       kp.octave,
+                       k->features->disparity_offset});
       }
     }
   }
@@ -503,8 +551,18 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
     const double s = 1.0 / pyramid_.scale[o.level];
     ceres::CostFunction* cost;
     ceres::LossFunction* loss;
+    if (o.uvr.z() >= 0.0 && options_.estimate_disparity_offset) {
+      cost = new ceres::AutoDiffCostFunction<OffsetStereoReprojection, 3, 7, 3, 1>(
+          new OffsetStereoReprojection(camera_, o.uvr, o.applied_offset, s));
+      loss = new ceres::HuberLoss(std::sqrt(kChi2Stereo));
+      blocks[k] = problem.AddResidualBlock(
+          cost, loss, poses[o.kf_id].data(), points[o.point_id].data(), &offset);
+      continue;
+    }
     if (o.uvr.z() >= 0.0) {
-      cost = new optimization::StereoReprojectionCost(camera_, o.uvr, s);
+      // Measurements with another applied offset than the map's current one.
+      const Eigen::Vector3d uvr(o.uvr.x(), o.uvr.y(), o.uvr.z() + o.applied_offset - offset);
+      cost = new optimization::StereoReprojectionCost(camera_, uvr, s);
       loss = new ceres::HuberLoss(std::sqrt(kChi2Stereo));
     } else {
       cost = new optimization::MonoReprojectionCost(camera_, o.uvr.head<2>(), s);
@@ -512,6 +570,12 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
     }
     blocks[k] =
         problem.AddResidualBlock(cost, loss, poses[o.kf_id].data(), points[o.point_id].data());
+  }
+  if (options_.estimate_disparity_offset && problem.HasParameterBlock(&offset)) {
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<OffsetPrior, 1, 1>(
+                                 new OffsetPrior{prior_mean, 1.0 / prior_sigma}),
+                             nullptr,
+                             &offset);
   }
   for (auto& [id, params] : poses) {
     problem.SetManifold(params.data(), manifold);
@@ -535,7 +599,10 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
     camera_.ProjectStereoChecked(pc, &uvr);
     double e2 = (uvr.head<2>() - o.uvr.head<2>()).squaredNorm();
     const bool stereo = o.uvr.z() >= 0.0;
-    if (stereo) e2 += (uvr.z() - o.uvr.z()) * (uvr.z() - o.uvr.z());
+    if (stereo) {
+      const double ur = o.uvr.z() + o.applied_offset - offset;
+      e2 += (uvr.z() - ur) * (uvr.z() - ur);
+    }
     return e2 * pyramid_.inv_sigma2[o.level] > (stereo ? kChi2Stereo : kChi2Mono);
   };
   const bool aborted = abort != nullptr && abort->load();
@@ -559,6 +626,10 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
     auto it = p->observations.find(o.kf_id);
     if (it == p->observations.end() || it->second != o.kp_index) continue;
     map->EraseObservation(p, o.kf_id);
+  }
+  if (options_.estimate_disparity_offset && std::isfinite(offset)) {
+    map->set_disparity_offset(offset);
+    VLOG(1) << "keyframe " << kf_id << " disparity offset " << offset;
   }
   for (const auto& [id, params] : poses) {
     if (fixed.count(id)) continue;

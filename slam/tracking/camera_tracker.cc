@@ -84,6 +84,12 @@ void CameraTracker::SetState(State s) {
 TrackingState CameraTracker::Track(map::Frame* frame, map::Map* map) {
   if (state_ == TrackingState::kNotInitialized) return state_;
   std::lock_guard<std::mutex> lock(map->mutex());
+  // Stereo measurements with the map's current disparity offset estimate.
+  const float offset = static_cast<float>(map->disparity_offset());
+  frame->features = map::WithDisparityOffset(frame->features, camera_, offset);
+  if (last_frame_.features != nullptr) {
+    last_frame_.features = map::WithDisparityOffset(last_frame_.features, camera_, offset);
+  }
   frame->ResetMatches();
   bool ok = false;
   bool relocalized = false;
