@@ -224,6 +224,12 @@ bool ReadRunConfig(const std::string& path, RunConfig* config, std::string* erro
           s.constrain_objects = v != 0;
         else if (k == "temporal_window_s")
           s.temporal_window_s = v;
+        else if (k == "object_ba_window_frames")
+          s.object_ba_window_frames = static_cast<int>(v);
+        else if (k == "object_ba_iterations")
+          s.object_ba_iterations = static_cast<int>(v);
+        else if (k == "parked_objects_static")
+          s.parked_objects_static = v != 0;
         else if (k == "seed")
           s.seed = static_cast<uint64_t>(v);
         else {

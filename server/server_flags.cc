@@ -185,6 +185,12 @@ absl::Status ReadSlamOptions(const cv::FileNode& node, SlamOptions* o) {
       o->constrain_objects = v != 0;
     else if (key == "temporal_window_s")
       o->temporal_window_s = v;
+    else if (key == "object_ba_window_frames")
+      o->object_ba_window_frames = static_cast<int>(v);
+    else if (key == "object_ba_iterations")
+      o->object_ba_iterations = static_cast<int>(v);
+    else if (key == "parked_objects_static")
+      o->parked_objects_static = v != 0;
     else if (key == "seed")
       o->seed = static_cast<uint64_t>(v);
     else

@@ -36,6 +36,15 @@ absl::Status SlamOptions::Validate() const {
   if (!(temporal_window_s > 0.0 && temporal_window_s <= 600.0)) {
     return bad("temporal_window_s must be in (0, 600], got " + std::to_string(temporal_window_s));
   }
+  if (object_ba_window_frames != 0 &&
+      (object_ba_window_frames < 3 || object_ba_window_frames > 100)) {
+    return bad("object_ba_window_frames must be 0 (off) or in [3, 100], got " +
+               std::to_string(object_ba_window_frames));
+  }
+  if (object_ba_iterations < 1 || object_ba_iterations > 50) {
+    return bad("object_ba_iterations must be in [1, 50], got " +
+               std::to_string(object_ba_iterations));
+  }
   return absl::OkStatus();
 }
 

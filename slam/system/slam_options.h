@@ -15,10 +15,10 @@ enum class MappingMode {
 
 struct SlamOptions {
   // Features.
-  int num_features = 2000;       // ORB features per image
-  int num_levels = 8;            // pyramid levels
-  double scale_factor = 1.2;     // pyramid scale
-  int fast_threshold = 20;       // initial FAST threshold (min 7 tried after)
+  int num_features = 2000;    // ORB features per image
+  int num_levels = 8;         // pyramid levels
+  double scale_factor = 1.2;  // pyramid scale
+  int fast_threshold = 20;    // initial FAST threshold (min 7 tried after)
   // Stereo.
   double max_depth_baselines = 40.0;  // "close" points: depth < this × baseline
   // Mapping.
@@ -26,10 +26,21 @@ struct SlamOptions {
   int local_ba_iterations = 10;
   int num_threads = 1;  // Ceres threads per solve
   // Dynamic objects (TwistSLAM §IV).
-  bool use_masks = true;            // false: ignore panoptic masks (all static)
-  bool track_objects = true;        // estimate object poses and twists
-  bool constrain_objects = true;    // false: free 6-DoF object motion
-  double temporal_window_s = 5.0;   // temporal keyframe set duration
+  bool use_masks = true;           // false: ignore panoptic masks (all static)
+  bool track_objects = true;       // estimate object poses and twists
+  bool constrain_objects = true;   // false: free 6-DoF object motion
+  double temporal_window_s = 5.0;  // temporal keyframe set duration
+  // Dynamic BA of the tracked objects (poses, constrained corrections, points;
+  // camera poses fixed) over the last N frames, also bounded by
+  // temporal_window_s. 0: off; else in [3, 100].
+  int object_ba_window_frames = 10;
+  int object_ba_iterations = 5;  // Levenberg-Marquardt iterations per frame
+  // Keypoints of dynamic-class instances the object stage has seen standing
+  // still (parked cars) are used by the static camera pipeline (tracking and
+  // mapping) until the instance moves again. Off by default: it helps where
+  // many parked cars are tracked (follow_braking) but not on the other
+  // generated scenarios (docs/objects.md §9).
+  bool parked_objects_static = false;
   // Seed for every random choice (RANSAC): same input -> same output.
   uint64_t seed = 42;
 

@@ -6,8 +6,10 @@
 
 #include <glog/logging.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <fstream>
+#include <map>
 #include <mutex>
 #include <opencv2/imgproc.hpp>
 #include <sstream>
@@ -26,7 +28,9 @@ namespace twist {
 namespace {
 
 constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
-constexpr uint32_t kFormatVersion = 1;
+// 2: + object_ba_window_frames, object_ba_iterations, parked_objects_static
+// and the parked-instance state. Version 1 files still load (defaults).
+constexpr uint32_t kFormatVersion = 2;
 
 features::OrbOptions OrbOptionsFrom(const SlamOptions& o) {
   features::OrbOptions orb;
@@ -161,9 +165,12 @@ void WriteConfig(const SessionConfig& c, system_io::BinaryWriter* w) {
   w->Pod<uint8_t>(o.constrain_objects);
   w->Pod(o.temporal_window_s);
   w->Pod(o.seed);
+  w->Pod<int32_t>(o.object_ba_window_frames);
+  w->Pod<int32_t>(o.object_ba_iterations);
+  w->Pod<uint8_t>(o.parked_objects_static);
 }
 
-absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r) {
+absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r, uint32_t version) {
   SessionConfig c;
   auto& cam = c.camera;
   cam.fx = r->Pod<double>();
@@ -188,6 +195,15 @@ absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r) {
   o.constrain_objects = r->Pod<uint8_t>() != 0;
   o.temporal_window_s = r->Pod<double>();
   o.seed = r->Pod<uint64_t>();
+  if (version >= 2) {
+    o.object_ba_window_frames = r->Pod<int32_t>();
+    o.object_ba_iterations = r->Pod<int32_t>();
+    o.parked_objects_static = r->Pod<uint8_t>() != 0;
+  } else {
+    // Version 1 engines ran neither the objects' BA nor parked instances.
+    o.object_ba_window_frames = 0;
+    o.parked_objects_static = false;
+  }
   if (!r->ok()) return absl::DataLossError("state file truncated in the configuration");
   absl::StatusOr<joints::ClassTable> table = joints::ClassTable::FromText(classes);
   if (!table.ok()) {
@@ -196,6 +212,70 @@ absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r) {
   }
   c.classes = *std::move(table);
   return c;
+}
+
+// ---------------------------------------------------------- parked objects
+// Instances of a-priori dynamic classes that the object stage reports as
+// standing still (parked cars) help the camera like static points: once an
+// instance has been tracked below kStillSpeed for kParkFrames consecutive
+// frames, its keypoints are static for tracking and mapping from the next
+// frame on. It leaves the set as soon as the object stage sees it move (one
+// tracked frame above kMovingSpeed), loses it, or stops reporting it. The
+// state is per panoptic label (class * 1000 + instance): keypoints only carry
+// labels. A parked instance's map points are ordinary static points; when it
+// drives off, its keypoints are dynamic again and the tracker (which only
+// matches static keypoints) no longer matches them; the stale points stay
+// consistent with the keyframes that saw the car parked (only the mapper
+// erases points). docs/objects.md §9 has the measurements.
+struct ParkedLabel {
+  int still_frames = 0;  // consecutive tracked frames below kStillSpeed
+  bool parked = false;
+  int64_t last_seen = 0;  // frame counter when last reported
+};
+constexpr double kStillSpeed = 0.3;   // m/s (about 1 km/h)
+constexpr double kMovingSpeed = 0.5;  // m/s
+constexpr int kParkFrames = 5;
+constexpr int64_t kForgetFrames = 10;
+
+bool IsParked(const std::map<int32_t, ParkedLabel>& parked, int32_t label) {
+  auto it = parked.find(label);
+  return it != parked.end() && it->second.parked;
+}
+
+void UpdateParked(const std::vector<ObjectResult>& objects,
+                  int64_t frame,
+                  std::map<int32_t, ParkedLabel>* parked) {
+  for (const ObjectResult& o : objects) {
+    if (o.instance_id <= 0) continue;
+    ParkedLabel& p = (*parked)[o.class_id * 1000 + o.instance_id];
+    p.last_seen = frame;
+    if (o.state == ObjectState::kLost) {
+      p = ParkedLabel{0, false, frame};
+    } else if (o.state == ObjectState::kTracked) {
+      if (o.speed_mps > kMovingSpeed) {
+        VLOG_IF(1, p.parked) << "frame " << frame << ": label " << o.class_id * 1000 + o.instance_id
+                             << " moves (" << o.speed_mps << " m/s): no longer parked";
+        p.still_frames = 0;
+        p.parked = false;
+      } else if (o.speed_mps < kStillSpeed) {
+        p.still_frames = std::min(p.still_frames + 1, 1000);
+        if (p.still_frames >= kParkFrames && !p.parked) {
+          VLOG(1) << "frame " << frame << ": label " << o.class_id * 1000 + o.instance_id
+                  << " parked";
+          p.parked = true;
+        }
+      } else {
+        p.still_frames = 0;  // in between: not parked yet, but not moving either
+      }
+    }
+  }
+  for (auto it = parked->begin(); it != parked->end();) {
+    if (frame - it->second.last_seen > kForgetFrames) {
+      it = parked->erase(it);
+    } else {
+      ++it;
+    }
+  }
 }
 
 // ------------------------------------------------------------------ engine
@@ -211,7 +291,10 @@ class SlamSystemImpl final : public SlamSystem {
       thread_ = std::make_unique<mapping::MappingThread>(&mapper_, &map_);
     }
     if (config_.options.track_objects && config_.options.use_masks) {
-      objects_ = std::make_unique<ObjectStage>(config_);
+      ObjectStageOptions so;
+      so.ba_window_frames = config_.options.object_ba_window_frames;
+      so.ba_iterations = config_.options.object_ba_iterations;
+      objects_ = std::make_unique<ObjectStage>(config_, so);
     }
   }
   ~SlamSystemImpl() override { Shutdown(); }
@@ -226,7 +309,7 @@ class SlamSystemImpl final : public SlamSystem {
     shutdown_ = true;
   }
 
-  absl::Status Restore(system_io::BinaryReader* r);
+  absl::Status Restore(system_io::BinaryReader* r, uint32_t version);
 
  private:
   absl::Status ValidateInput(const StereoFrame& frame) const;
@@ -246,6 +329,8 @@ class SlamSystemImpl final : public SlamSystem {
   int64_t first_timestamp_ns_ = 0;
   int max_frames_ = 10;  // frames per second, from the first two timestamps
   bool shutdown_ = false;
+  // Parked instances (SlamOptions::parked_objects_static), by panoptic label.
+  std::map<int32_t, ParkedLabel> parked_;
 };
 
 absl::Status SlamSystemImpl::ValidateInput(const StereoFrame& frame) const {
@@ -321,7 +406,10 @@ std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
                                 ? static_cast<int32_t>(frame.panoptic.at<uint16_t>(y, x))
                                 : frame.panoptic.at<int32_t>(y, x);
       f.labels[i] = label;
-      if (config_.options.use_masks && config_.classes.IsDynamic(label / 1000)) f.is_static[i] = 0;
+      if (config_.options.use_masks && config_.classes.IsDynamic(label / 1000) &&
+          !IsParked(parked_, label)) {
+        f.is_static[i] = 0;
+      }
     }
   }
   timings->push_back({"stereo", sw.ElapsedMs()});
@@ -431,6 +519,9 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
     // and must not leave the session half-updated.
     absl::StatusOr<ObjectStageOutput> o = objects_->Process(oi);
     if (o.ok()) {
+      if (config_.options.parked_objects_static) {
+        UpdateParked(o->objects, frames_processed_, &parked_);
+      }
       result.objects = std::move(o->objects);
       result.cluster_events = std::move(o->cluster_events);
       for (const StageTiming& t : o->timings) result.timings.push_back(t);
@@ -540,6 +631,13 @@ absl::Status SlamSystemImpl::Save(const std::string& path) const {
   w.Pod(ts.last_reloc_frame_id);
   const std::vector<int64_t> recent(mapper_.recent_points().begin(), mapper_.recent_points().end());
   w.PodVector(recent);
+  w.Pod<uint64_t>(parked_.size());
+  for (const auto& [label, p] : parked_) {
+    w.Pod(label);
+    w.Pod<int32_t>(p.still_frames);
+    w.Pod<uint8_t>(p.parked);
+    w.Pod(p.last_seen);
+  }
   w.Bytes(kMagic, sizeof(kMagic));  // trailer: detects truncation
 
   const std::string tmp = path + ".tmp";
@@ -560,7 +658,7 @@ absl::Status SlamSystemImpl::Save(const std::string& path) const {
   return absl::OkStatus();
 }
 
-absl::Status SlamSystemImpl::Restore(system_io::BinaryReader* r) {
+absl::Status SlamSystemImpl::Restore(system_io::BinaryReader* r, uint32_t version) {
   frames_processed_ = r->Pod<int64_t>();
   has_last_timestamp_ = r->Pod<uint8_t>() != 0;
   last_timestamp_ns_ = r->Pod<int64_t>();
@@ -628,6 +726,16 @@ absl::Status SlamSystemImpl::Restore(system_io::BinaryReader* r) {
   ts.last_kf_frame_id = r->Pod<int64_t>();
   ts.last_reloc_frame_id = r->Pod<int64_t>();
   const std::vector<int64_t> recent = r->PodVector<int64_t>();
+  if (version >= 2) {
+    const uint64_t np = r->Count(17);
+    for (uint64_t k = 0; k < np && r->ok(); ++k) {
+      const int32_t label = r->Pod<int32_t>();
+      ParkedLabel& p = parked_[label];
+      p.still_frames = r->Pod<int32_t>();
+      p.parked = r->Pod<uint8_t>() != 0;
+      p.last_seen = r->Pod<int64_t>();
+    }
+  }
   char trailer[8];
   for (char& c : trailer) c = r->Pod<char>();
   if (!r->ok() || std::memcmp(trailer, kMagic, 8) != 0 || !r->at_end()) {
@@ -677,18 +785,18 @@ absl::StatusOr<std::unique_ptr<SlamSystem>> SlamSystem::Load(const std::string& 
     return absl::DataLossError(path + " is not a TwistSLAM state file");
   }
   const uint32_t version = r.Pod<uint32_t>();
-  if (version != kFormatVersion) {
+  if (version < 1 || version > kFormatVersion) {
     return absl::DataLossError(path + ": unsupported state format version " +
                                std::to_string(version));
   }
-  absl::StatusOr<SessionConfig> config = ReadConfig(&r);
+  absl::StatusOr<SessionConfig> config = ReadConfig(&r, version);
   if (!config.ok()) return config.status();
   if (absl::Status s = config->Validate(); !s.ok()) {
     return absl::DataLossError("state file has an invalid configuration: " +
                                std::string(s.message()));
   }
   auto sys = std::make_unique<SlamSystemImpl>(*config);
-  if (absl::Status s = sys->Restore(&r); !s.ok()) {
+  if (absl::Status s = sys->Restore(&r, version); !s.ok()) {
     return absl::DataLossError(path + ": " + std::string(s.message()));
   }
   return std::unique_ptr<SlamSystem>(std::move(sys));
