@@ -40,6 +40,9 @@ struct ObjectResult {
   double speed_mps = 0.0;  // |velocity of the object origin| in m/s
   std::string joint;       // joint type name, e.g. "planar"
   int num_points = 0;
+  // The object's motion has been statistically insignificant for the last
+  // frames (a parked car): its twist is reported as zero and its pose held.
+  bool stationary = false;
 };
 
 enum class ClusterEventType {

@@ -162,13 +162,16 @@ ObjectResult ObjectTracker::ToResult(const TrackedObject& o) {
   r.instance_id = o.instance_id;
   r.state = o.state;
   r.world_from_object = o.world_from_object;
-  if (o.step_seconds > 0.0) r.twist_in_world = o.twist_step / o.step_seconds;
+  // A stationary object's twist is zero by decision, whatever a later
+  // refinement (the dynamic BA) made of its held poses.
+  if (o.step_seconds > 0.0 && !o.stationary) r.twist_in_world = o.twist_step / o.step_seconds;
   r.twist_in_joint = o.joint.WorldToJoint(r.twist_in_world);
   const Eigen::Vector3d v = r.twist_in_world.head<3>() +
                             r.twist_in_world.tail<3>().cross(o.world_from_object.translation());
   r.speed_mps = v.norm();
   r.joint = joints::JointTypeName(o.joint.type());
   r.num_points = static_cast<int>(o.points.size());
+  r.stationary = o.stationary;
   return r;
 }
 
@@ -248,6 +251,11 @@ bool ObjectTracker::Create(const FrameContext& ctx,
   std::vector<double> depths;
   for (const auto& p : p_cam) depths.push_back(p.z());
   const double median_depth = Median(depths);
+  if (options_.max_create_depth_sigma_m > 0.0 &&
+      median_depth * median_depth * options_.disparity_sigma_px / camera_.bf() >
+          options_.max_create_depth_sigma_m) {
+    return false;
+  }
   std::vector<Eigen::Vector3d> p_world;
   std::vector<size_t> kept;
   for (size_t j = 0; j < idx.size(); ++j) {
@@ -364,24 +372,29 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   }
 
   if (options_.refine_by_projection) {
-    // Project every point not yet matched with the current estimate (or the
-    // prediction) and look for it by descriptor, then by patch.
+    // Project the points with the current estimate (or the prediction) and
+    // look for them by descriptor among the frame's keypoints, then by patch
+    // (NCC against the reference patch taken when the point was created).
+    // Both are drift-free: flow chained from frame to frame is not (below).
     const SE3d current = est ? est->world_from_object : predicted;
     const SE3d camera_from_object = f.camera_from_world * current;
-    std::vector<bool> skip(o->points.size(), false);
-    for (size_t j = 0; j < obs.size(); ++j) {
-      if (!est || est->inliers[j]) skip[obs_point[j]] = true;
-    }
-    if (est) {  // keep only the inliers of the first estimate
-      std::vector<TwistObservation> kept;
-      std::vector<size_t> kept_point;
+    std::vector<TwistObservation> flow_obs;  // inliers of the first estimate
+    std::vector<size_t> flow_point;
+    if (est) {
       for (size_t j = 0; j < obs.size(); ++j) {
         if (!est->inliers[j]) continue;
-        kept.push_back(obs[j]);
-        kept_point.push_back(obs_point[j]);
+        flow_obs.push_back(obs[j]);
+        flow_point.push_back(obs_point[j]);
       }
-      obs = std::move(kept);
-      obs_point = std::move(kept_point);
+    }
+    std::vector<bool> skip(o->points.size(), false);
+    if (!options_.measure_by_matching) {
+      // Flow-tracked points keep their flow positions; only the others are searched.
+      for (size_t j = 0; j < obs.size(); ++j) {
+        if (!est || est->inliers[j]) skip[obs_point[j]] = true;
+      }
+      obs = flow_obs;
+      obs_point = flow_point;
     } else {
       obs.clear();
       obs_point.clear();
@@ -413,28 +426,74 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       const auto found = PatchSearch(f.left, o->points[k].patch, uv, options_.search);
       if (found && InsideDetection(det, *found, 2.0)) add_obs(k, *found, stereo_at(*found, k));
     }
+    // Falls back to the first (flow) estimate and its inliers.
+    auto use_flow_estimate = [&]() {
+      obs = flow_obs;
+      obs_point = flow_point;
+      est->inliers.assign(obs.size(), true);
+    };
     if (obs.size() > before || !est) {
-      if (static_cast<int>(obs.size()) < options_.min_points_to_track) return est.has_value();
-      const Vector6d seed = est ? est->twist : initial;
-      absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_,
-                                                            f.camera_from_world,
-                                                            o->world_from_object,
-                                                            projector,
-                                                            obs,
-                                                            seed,
-                                                            options_.estimator);
-      if (e.ok() && e->success) {
-        est = *e;
+      std::optional<TwistEstimate> refined;
+      if (static_cast<int>(obs.size()) >= options_.min_points_to_track) {
+        absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_,
+                                                              f.camera_from_world,
+                                                              o->world_from_object,
+                                                              projector,
+                                                              obs,
+                                                              est ? est->twist : initial,
+                                                              options_.estimator);
+        if (e.ok() && e->success) refined = *e;
+      }
+      // Matches around a wrong projection can agree on a wrong pose
+      // (repetitive texture): the refined estimate must explain most of the
+      // flow inliers.
+      if (refined && est && options_.measure_by_matching && !flow_obs.empty()) {
+        int agree = 0;
+        for (const TwistObservation& t : flow_obs) {
+          const auto r =
+              TwistResidual(camera_, f.camera_from_world, o->world_from_object, refined->twist, t);
+          agree += r && r->head<2>().norm() <= options_.flow_agreement_px ? 1 : 0;
+        }
+        if (agree < options_.flow_agreement_ratio * static_cast<double>(flow_obs.size())) {
+          refined.reset();
+        }
+      }
+      if (refined) {
+        est = std::move(refined);
       } else if (!est) {
         return false;
       } else {
-        // Keep the first estimate; its observations are the inliers kept above.
-        est->inliers.assign(obs.size(), false);
-        for (size_t j = 0; j < before; ++j) est->inliers[j] = true;
+        use_flow_estimate();
       }
+    } else if (est && options_.measure_by_matching) {
+      use_flow_estimate();  // nothing matched
+    } else if (est) {
+      est->inliers.assign(obs.size(), true);  // the flow inliers kept above
     }
   }
   if (!est) return false;
+
+  if (options_.stationary_after_frames > 0 && ctx.dt > 0.0) {
+    const int dof = static_cast<int>(ProjectorRangeBasis(projector).cols());
+    const bool significant =
+        dof > 0 &&
+        TwistSignificance(camera_, f.camera_from_world, o->world_from_object, *est, obs) >=
+            ChiSquareQuantile(dof, options_.stationary_confidence);
+    const Eigen::Vector3d t = o->world_from_object.translation();
+    const double speed = (est->twist.head<3>() + est->twist.tail<3>().cross(t)).norm() / ctx.dt;
+    if (o->stationary) {
+      o->stationary = !(significant && speed >= options_.stationary_leave_speed_mps);
+      o->insignificant_steps = o->stationary ? o->insignificant_steps + 1 : 0;
+    } else {
+      const bool still = !significant || speed < options_.stationary_enter_speed_mps;
+      o->insignificant_steps = still ? o->insignificant_steps + 1 : 0;
+      o->stationary = o->insignificant_steps >= options_.stationary_after_frames;
+    }
+    if (o->stationary) {
+      est->twist.setZero();
+      est->world_from_object = o->world_from_object;
+    }
+  }
 
   o->world_from_object = est->world_from_object;
   o->twist_step = est->twist;

@@ -215,4 +215,35 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
   return est;
 }
 
+double TwistSignificance(const geometry::StereoCamera& camera,
+                         const SE3d& camera_from_world,
+                         const SE3d& world_from_object_previous,
+                         const TwistEstimate& estimate,
+                         const std::vector<TwistObservation>& observations) {
+  CHECK_EQ(estimate.inliers.size(), observations.size());
+  const double sigma2 = estimate.sigma_px * estimate.sigma_px;
+  if (!(sigma2 > 0.0)) return 0.0;
+  double gain = 0.0;
+  for (size_t j = 0; j < observations.size(); ++j) {
+    if (!estimate.inliers[j]) continue;
+    const auto r0 = TwistResidual(
+        camera, camera_from_world, world_from_object_previous, Vector6d::Zero(), observations[j]);
+    const auto r1 = TwistResidual(
+        camera, camera_from_world, world_from_object_previous, estimate.twist, observations[j]);
+    if (!r0 || !r1) continue;
+    gain += (r0->squaredNorm() - r1->squaredNorm()) / sigma2;
+  }
+  return gain;
+}
+
+double ChiSquareQuantile(int dof, double confidence) {
+  CHECK(dof >= 1 && dof <= 6) << "chi-square table covers 1..6 degrees of freedom, got " << dof;
+  static constexpr double kTable[3][6] = {
+      {3.841, 5.991, 7.815, 9.488, 11.070, 12.592},       // 0.95
+      {6.635, 9.210, 11.345, 13.277, 15.086, 16.812},     // 0.99
+      {10.828, 13.816, 16.266, 18.467, 20.515, 22.458}};  // 0.999
+  const int row = confidence < 0.97 ? 0 : (confidence < 0.995 ? 1 : 2);
+  return kTable[row][dof - 1];
+}
+
 }  // namespace twist::objects

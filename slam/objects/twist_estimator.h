@@ -84,6 +84,22 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
                                                   const geometry::Vector6d& initial_twist,
                                                   const TwistEstimatorOptions& options);
 
+// Likelihood-ratio statistic of a twist estimate against the zero twist over
+// the estimate's inlier observations, in units of its MAD scale:
+//   Σ_inliers ‖r_j(0)‖²/σ² − ‖r_j(ξ*)‖²/σ².
+// Under "the object did not move" it follows χ² with rank(Π) degrees of
+// freedom. Observations whose point is behind the camera under either twist
+// are skipped.
+double TwistSignificance(const geometry::StereoCamera& camera,
+                         const geometry::SE3d& camera_from_world,
+                         const geometry::SE3d& world_from_object_previous,
+                         const TwistEstimate& estimate,
+                         const std::vector<TwistObservation>& observations);
+
+// Upper quantile of the χ² distribution with dof ∈ [1, 6] degrees of freedom
+// at confidence 0.95, 0.99 or 0.999 (the nearest tabulated confidence).
+double ChiSquareQuantile(int dof, double confidence);
+
 // Residual (observation − prediction) of one observation for a given twist;
 // nullopt when the point is not in front of the camera.
 std::optional<Eigen::Vector3d> TwistResidual(const geometry::StereoCamera& camera,

@@ -19,11 +19,15 @@ namespace twist::objects::testing {
 
 class CarSequence {
  public:
-  CarSequence(double noise_px, uint64_t seed, double lateral_m = 3.0, int num_points = 60)
+  CarSequence(double noise_px,
+              uint64_t seed,
+              double lateral_m = 3.0,
+              int num_points = 60,
+              double depth_m = 14.0)
       : noise_(noise_px), rng_(seed) {
     cam_ = KittiLikeCamera();
     road_ = semantic::NormalizePlane(Eigen::Vector4d(0, -1, 0, 1.65));
-    world_from_joint_ = RoadJointFrame(Eigen::Vector3d(lateral_m, 0, 14.0));
+    world_from_joint_ = RoadJointFrame(Eigen::Vector3d(lateral_m, 0, depth_m));
     world_from_object_ = world_from_joint_;
     Vector6d twist_in_joint;  // per frame (10 Hz): 8 m/s forward, turning
     twist_in_joint << 0.05, 0.8, 0, 0, 0, 0.02;
@@ -41,6 +45,11 @@ class CarSequence {
   const std::vector<Eigen::Vector3d>& points() const { return points_; }
   const SE3d& world_from_object() const { return world_from_object_; }
   const Vector6d& step() const { return step_; }
+  // The car's motion per frame in the world (zero: a parked car).
+  void set_step(const Vector6d& step) { step_ = step; }
+  // Added to every vector of the dense flow: a tracker that chains flow from
+  // frame to frame drifts by this much per frame.
+  void set_flow_bias(const Eigen::Vector2d& bias_px) { flow_bias_ = bias_px; }
 
   // Frame i (advances the truth by one step after frame 0).
   ObjectFrameInput Next(int64_t cluster_id, bool detected) {
@@ -81,7 +90,7 @@ class CarSequence {
     if (!prev_uv_.empty()) {
       cv::Mat owner(cam_.height, cam_.width, CV_32SC1, cv::Scalar(-1));
       for (size_t k = 0; k < points_.size(); ++k) {
-        const Eigen::Vector2d d = true_uv[k] - prev_uv_[k];
+        const Eigen::Vector2d d = true_uv[k] - prev_uv_[k] + flow_bias_;
         const int px = static_cast<int>(std::floor(prev_uv_[k].x()));
         const int py = static_cast<int>(std::floor(prev_uv_[k].y()));
         for (int dy = 0; dy <= 1; ++dy) {
@@ -125,6 +134,7 @@ class CarSequence {
   std::vector<Eigen::Vector3d> points_;
   std::vector<cv::Mat> descriptors_;
   std::vector<Eigen::Vector2d> prev_uv_;
+  Eigen::Vector2d flow_bias_ = Eigen::Vector2d::Zero();
   int64_t index_ = 0;
 };
 

@@ -119,6 +119,97 @@ TEST(ObjectTracker, NoisyTrackingAndUnconstrainedSwitch) {
   }
 }
 
+TEST(ObjectTracker, ParkedCarIsHeldStationaryAndAMovingOneNeverIs) {
+  // Parked: zero motion, 0.5 px keypoint noise, camera driving 0.6 m/frame.
+  CarSequence parked(0.5, 21);
+  parked.set_step(Vector6d::Zero());
+  ObjectTracker tracker(parked.camera(), ObjectTrackerOptions{});
+  const SE3d gt0 = parked.world_from_object();
+  SE3d est0;
+  int stationary_frames = 0;
+  for (int i = 0; i < 15; ++i) {
+    const auto results = tracker.Process(parked.Next(4, true));
+    ASSERT_TRUE(results.ok());
+    ASSERT_EQ(results->size(), 1u);
+    const ObjectResult& r = (*results)[0];
+    if (i == 0) est0 = r.world_from_object;
+    if (!r.stationary) continue;
+    ++stationary_frames;
+    EXPECT_EQ(r.speed_mps, 0.0);
+    EXPECT_TRUE(r.twist_in_world.isZero(0.0));
+    // Held where it was: the true pose did not change either.
+    const SE3d est_motion = r.world_from_object * est0.Inverse();
+    EXPECT_LT(TranslationError(est_motion, parked.world_from_object() * gt0.Inverse()), 0.1);
+  }
+  // Stationary from the third tracked step on (stationary_after_frames = 3).
+  EXPECT_GE(stationary_frames, 11);
+
+  CarSequence moving(0.5, 22);  // 8 m/s, turning
+  ObjectTracker tracker2(moving.camera(), ObjectTrackerOptions{});
+  for (int i = 0; i < 15; ++i) {
+    const auto results = tracker2.Process(moving.Next(5, true));
+    ASSERT_TRUE(results.ok());
+    ASSERT_EQ(results->size(), 1u);
+    EXPECT_FALSE((*results)[0].stationary) << "frame " << i;
+    if (i > 0) {
+      EXPECT_GT((*results)[0].speed_mps, 6.0);
+    }
+  }
+}
+
+TEST(ObjectTracker, FarObjectIsCreatedOnlyOnceItsStereoDepthIsUsable) {
+  // 50 m ahead: depth noise 50² · 0.3 / bf ≈ 1.9 m > 0.8 m.
+  CarSequence far(0.0, 23, 3.0, 60, 50.0);
+  far.set_step(Vector6d::Zero());
+  ObjectTracker strict(far.camera(), ObjectTrackerOptions{});
+  ObjectTrackerOptions no_limit;
+  no_limit.max_create_depth_sigma_m = 0.0;
+  ObjectTracker loose(far.camera(), no_limit);
+  const ObjectFrameInput f = far.Next(6, true);
+  const auto a = strict.Process(f);
+  const auto b = loose.Process(f);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_TRUE(a->empty());
+  EXPECT_EQ(b->size(), 1u);
+  // 14 m ahead (the default sequence): created at once.
+  CarSequence near(0.0, 24);
+  ObjectTracker tracker(near.camera(), ObjectTrackerOptions{});
+  const auto c = tracker.Process(near.Next(7, true));
+  ASSERT_TRUE(c.ok());
+  EXPECT_EQ(c->size(), 1u);
+}
+
+TEST(ObjectTracker, MatchingMeasurementsDoNotInheritFlowDrift) {
+  // The flow drifts 0.4 px/frame to the right; keypoints are exact. Chained
+  // flow positions walk off their points, matched keypoints do not.
+  double drift[2] = {0.0, 0.0};
+  for (bool by_matching : {true, false}) {
+    CarSequence seq(0.0, 25);
+    seq.set_flow_bias(Eigen::Vector2d(0.4, 0.0));
+    ObjectTrackerOptions options;
+    options.measure_by_matching = by_matching;
+    options.stationary_after_frames = 0;
+    ObjectTracker tracker(seq.camera(), options);
+    const SE3d gt0 = seq.world_from_object();
+    SE3d est0;
+    for (int i = 0; i < 20; ++i) {
+      const auto results = tracker.Process(seq.Next(8, true));
+      ASSERT_TRUE(results.ok());
+      ASSERT_EQ(results->size(), 1u);
+      const ObjectResult& r = (*results)[0];
+      if (i == 0) est0 = r.world_from_object;
+      const SE3d est_motion = r.world_from_object * est0.Inverse();
+      const SE3d gt_motion = seq.world_from_object() * gt0.Inverse();
+      drift[by_matching ? 0 : 1] =
+          std::max(drift[by_matching ? 0 : 1], TranslationError(est_motion, gt_motion));
+    }
+  }
+  std::printf(
+      "[flow drift 0.4 px/frame] max drift: matching %.4f m, flow %.4f m\n", drift[0], drift[1]);
+  EXPECT_LT(drift[0], 1e-3);
+  EXPECT_GT(drift[1], 10.0 * drift[0]);
+}
+
 TEST(ObjectTracker, LostThenReidentifiedUnderANewClusterId) {
   CarSequence seq(0.0, 3);
   ObjectTrackerOptions options;

@@ -264,5 +264,49 @@ TEST(TwistEstimator, PlanarJointBeatsFreeMotionUnderNoise) {
   EXPECT_GT(height_f, 1e-3 * trials);
 }
 
+TEST(TwistEstimator, SignificanceSeparatesAParkedCarFromAMovingOne) {
+  EXPECT_NEAR(ChiSquareQuantile(3, 0.99), 11.345, 1e-9);
+  EXPECT_NEAR(ChiSquareQuantile(1, 0.95), 3.841, 1e-9);
+  EXPECT_NEAR(ChiSquareQuantile(6, 0.999), 22.458, 1e-9);
+  const CarScene s = MakeCarScene(40, 15.0, 11);
+  const double gate = ChiSquareQuantile(3, 0.99);
+  int parked_significant = 0;
+  for (uint64_t seed = 0; seed < 20; ++seed) {
+    std::mt19937_64 rng(100 + seed);
+    // Parked: the object did not move; 0.7 px noise (the MAD floor).
+    const auto parked =
+        Observe(s.cam, s.camera_from_world, s.world_from_object_prev, s.points, true, 0.7, &rng);
+    const auto est = EstimateObjectTwist(s.cam,
+                                         s.camera_from_world,
+                                         s.world_from_object_prev,
+                                         s.projector,
+                                         parked,
+                                         Vector6d::Zero(),
+                                         TwistEstimatorOptions{});
+    ASSERT_TRUE(est.ok() && est->success);
+    const double g =
+        TwistSignificance(s.cam, s.camera_from_world, s.world_from_object_prev, *est, parked);
+    // The estimate minimises the Huber cost, not the squares: about as good as zero or better.
+    EXPECT_GT(g, -1.0);
+    parked_significant += g >= gate ? 1 : 0;
+    // Moving 1.2 m/frame: hugely significant.
+    const auto moving =
+        Observe(s.cam, s.camera_from_world, s.world_from_object_true, s.points, true, 0.7, &rng);
+    const auto est_m = EstimateObjectTwist(s.cam,
+                                           s.camera_from_world,
+                                           s.world_from_object_prev,
+                                           s.projector,
+                                           moving,
+                                           Vector6d::Zero(),
+                                           TwistEstimatorOptions{});
+    ASSERT_TRUE(est_m.ok() && est_m->success);
+    EXPECT_GT(
+        TwistSignificance(s.cam, s.camera_from_world, s.world_from_object_prev, *est_m, moving),
+        100.0 * gate);
+  }
+  // A 1 % test: at most a few of 20 parked draws are called significant.
+  EXPECT_LE(parked_significant, 3);
+}
+
 }  // namespace
 }  // namespace twist::objects

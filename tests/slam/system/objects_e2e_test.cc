@@ -148,10 +148,13 @@ TEST(ObjectsEndToEnd, DrivingCarsTrackedWithPlanarConstraint) {
   // The leading car (moving, seen all along).
   const io::ObjectMetrics* lead = LongestTracked(run.eval, true, sim::kClassCar);
   ASSERT_NE(lead, nullptr);
+  // Measured (seed 7, 30 frames): ATE 0.10 m, RPE_R 0.22 deg/m, 1.2 km/h.
   EXPECT_GT(lead->tracked_frames, 20);
-  EXPECT_LT(lead->ate, 0.5);
-  EXPECT_LT(lead->speed_error_kmh, 5.0);
-  // Parked cars: tracked and nearly still.
+  EXPECT_LT(lead->ate, 0.2);
+  EXPECT_LT(lead->rpe_r_deg_per_m, 0.5);
+  EXPECT_LT(lead->speed_error_kmh, 2.5);
+  // Parked cars: tracked and nearly still (measured mean 1.4 km/h; held
+  // stationary once their motion is insignificant).
   int parked = 0;
   double parked_speed = 0.0;
   for (const auto& m : run.eval.objects) {
@@ -163,7 +166,7 @@ TEST(ObjectsEndToEnd, DrivingCarsTrackedWithPlanarConstraint) {
     ++parked;
   }
   EXPECT_GE(parked, 2);
-  EXPECT_LT(parked_speed / std::max(parked, 1), 6.0);
+  EXPECT_LT(parked_speed / std::max(parked, 1), 2.5);
 
   // Planar constraint: every planar track keeps its height above the road
   // (the component along its joint normal) and has no out-of-plane twist.
@@ -200,9 +203,11 @@ TEST(ObjectsEndToEnd, FollowBrakingAndDeterminism) {
   const E2eRun a = RunScenario("follow_braking", 20);
   const io::ObjectMetrics* lead = LongestTracked(a.eval, true, sim::kClassCar);
   ASSERT_NE(lead, nullptr);
+  // Measured (seed 7, 20 frames): ATE 0.06 m, RPE_R 0.09 deg/m, 0.5 km/h.
   EXPECT_GT(lead->tracked_frames, 14);
-  EXPECT_LT(lead->ate, 0.5);
-  EXPECT_LT(lead->speed_error_kmh, 5.0);
+  EXPECT_LT(lead->ate, 0.15);
+  EXPECT_LT(lead->rpe_r_deg_per_m, 0.3);
+  EXPECT_LT(lead->speed_error_kmh, 1.5);
   // Same input -> same output.
   const E2eRun b = RunScenario("follow_braking", 20);
   ASSERT_EQ(a.est.size(), b.est.size());
@@ -221,8 +226,9 @@ TEST(ObjectsEndToEnd, RevoluteDoor) {
     if (m.class_id == sim::kClassDoor && m.est_track_id >= 0) door = &m;
   }
   ASSERT_NE(door, nullptr);
+  // Measured (seed 7, 30 frames): 20 frames tracked, ATE 0.46 m.
   EXPECT_GT(door->tracked_frames, 10);
-  EXPECT_LT(door->ate, 1.0);
+  EXPECT_LT(door->ate, 0.8);
 }
 
 // Switches, and a resume: objects are not persisted by Save(), so after
