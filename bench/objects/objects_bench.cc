@@ -12,10 +12,22 @@
 // plus the sparse Lucas–Kanade time for 60 points on a textured 1241x376
 // image, and one JSON document (stdout, or --json FILE).
 //
+// Then the whole engine (SlamSystem, synchronous mode, default options: ORB,
+// stereo, camera tracking, mapping, object stage with its dynamic BA) on a
+// rendered scenario (slam/sim, full KITTI-size images, --engine-frames
+// frames): median and p95 of the per-frame total time and of the process
+// CPU time spent in Process() (all threads; robust to a loaded machine), the
+// frame rate they sustain, and how many objects were
+// tracked per frame (issue #5: keep up with 10 frames/s with up to 5 tracked
+// objects). --engine-frames 0 skips it.
+//
 //   objects_bench [--frames N] [--window W] [--ba-iterations K] [--json FILE]
+//                 [--engine-scenario NAME] [--engine-frames N] [--engine-seed S]
+//                 [--engine-object-ba W]   (object_ba_window_frames; default: the option's)
 #include <time.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
@@ -25,11 +37,15 @@
 #include <string>
 #include <vector>
 
+#include "absl/status/statusor.h"
 #include "slam/common/timer.h"
 #include "slam/objects/dynamic_ba.h"
 #include "slam/objects/flow_association.h"
 #include "slam/objects/object_ba.h"
 #include "slam/objects/object_tracker.h"
+#include "slam/sim/renderer.h"
+#include "slam/sim/scenarios.h"
+#include "slam/system/slam_system.h"
 #include "tests/slam/objects/car_sequence.h"
 
 namespace {
@@ -43,6 +59,14 @@ using namespace twist::objects::testing;  // NOLINT
 double ThreadCpuMs() {
   timespec ts;
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+}
+
+// CPU time of the whole process (all threads: the engine extracts the right
+// image's ORB on a second thread).
+double ProcessCpuMs() {
+  timespec ts;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
   return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
 }
 
@@ -186,6 +210,68 @@ RunResult Run(int num_cars, int frames, int window, int ba_iterations) {
   return r;
 }
 
+struct EngineResult {
+  std::vector<double> total_ms, objects_ms, objects_ba_ms;
+  std::vector<double> process_cpu_ms;  // CPU time of the whole process during Process()
+  std::vector<double> num_tracked;     // objects tracked (not lost) per frame
+  int max_tracked = 0;
+  int frames = 0;
+  int lost_frames = 0;
+  int object_ba_window = 0;
+};
+
+// The whole engine on a rendered scenario (default SlamOptions).
+absl::StatusOr<EngineResult> RunEngine(const std::string& scenario_name,
+                                       int frames,
+                                       uint64_t seed,
+                                       int object_ba_window) {
+  auto scenario = twist::sim::MakeScenario(scenario_name, seed, frames);
+  if (!scenario.ok()) return scenario.status();
+  twist::sim::RenderOptions ro;
+  ro.gray = true;
+  twist::sim::Renderer renderer(scenario->camera, ro);
+  twist::SessionConfig config;
+  config.camera = scenario->camera;
+  if (object_ba_window >= 0) config.options.object_ba_window_frames = object_ba_window;
+  auto sys = twist::SlamSystem::Create(config);
+  if (!sys.ok()) return sys.status();
+  EngineResult r;
+  r.object_ba_window = config.options.object_ba_window_frames;
+  for (int k = 0; k < frames; ++k) {
+    twist::sim::Exposure left, right;
+    left.noise_seed = 2 * static_cast<uint64_t>(k) + 1;
+    right.noise_seed = 2 * static_cast<uint64_t>(k) + 2;
+    const twist::sim::StereoRender img = renderer.RenderStereo(
+        scenario->scene, scenario->TimeOf(k), scenario->WorldFromCamera(k), left, right);
+    twist::StereoFrame f;
+    f.index = k;
+    f.timestamp_ns = static_cast<int64_t>(std::llround(scenario->TimeOf(k) * 1e9)) + 1000;
+    f.left = img.left;
+    f.right = img.right;
+    f.panoptic = img.panoptic;
+    const double cpu0 = ProcessCpuMs();
+    auto out = (*sys)->Process(f);
+    r.process_cpu_ms.push_back(ProcessCpuMs() - cpu0);
+    if (!out.ok()) return out.status();
+    ++r.frames;
+    if (out->state == twist::TrackingState::kLost) ++r.lost_frames;
+    double objects_ms = 0.0, ba_ms = 0.0;
+    for (const twist::StageTiming& t : out->timings) {
+      if (t.stage == "total") r.total_ms.push_back(t.ms);
+      if (t.stage == "objects") objects_ms = t.ms;
+      if (t.stage == "objects_ba") ba_ms = t.ms;
+    }
+    r.objects_ms.push_back(objects_ms);
+    r.objects_ba_ms.push_back(ba_ms);
+    int tracked = 0;
+    for (const twist::ObjectResult& o : out->objects)
+      tracked += o.state != twist::ObjectState::kLost;
+    r.num_tracked.push_back(tracked);
+    r.max_tracked = std::max(r.max_tracked, tracked);
+  }
+  return r;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -193,6 +279,10 @@ int main(int argc, char** argv) {
   int window = 10;
   int ba_iterations = 5;
   std::string json_path;
+  std::string engine_scenario = "driving";
+  int engine_frames = 60;
+  uint64_t engine_seed = 1;
+  int engine_object_ba = -1;  // -1: SlamOptions default
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     const bool has_value = i + 1 < argc;
@@ -204,10 +294,20 @@ int main(int argc, char** argv) {
       ba_iterations = std::atoi(argv[++i]);
     } else if (a == "--json" && has_value) {
       json_path = argv[++i];
+    } else if (a == "--engine-scenario" && has_value) {
+      engine_scenario = argv[++i];
+    } else if (a == "--engine-frames" && has_value) {
+      engine_frames = std::atoi(argv[++i]);
+    } else if (a == "--engine-object-ba" && has_value) {
+      engine_object_ba = std::atoi(argv[++i]);
+    } else if (a == "--engine-seed" && has_value) {
+      engine_seed = static_cast<uint64_t>(std::atoll(argv[++i]));
     } else {
       std::fprintf(
           stderr,
-          "usage: objects_bench [--frames N] [--window W] [--ba-iterations K] [--json FILE]\n");
+          "usage: objects_bench [--frames N] [--window W] [--ba-iterations K] [--json FILE]\n"
+          "                     [--engine-scenario NAME] [--engine-frames N] [--engine-seed S]\n"
+          "                     [--engine-object-ba W]\n");
       return 2;
     }
   }
@@ -279,6 +379,50 @@ int main(int argc, char** argv) {
                 Percentile(lk, 0.5),
                 Percentile(lk, 0.95));
     json << ", \"sparse_flow_60_points_ms\": " << Stats(lk);
+  }
+  if (engine_frames > 0) {
+    const absl::StatusOr<EngineResult> e =
+        RunEngine(engine_scenario, engine_frames, engine_seed, engine_object_ba);
+    if (!e.ok()) {
+      std::fprintf(stderr, "objects_bench: engine run: %s\n", e.status().ToString().c_str());
+      return 1;
+    }
+    double mean_total = 0.0, mean_tracked = 0.0;
+    for (double t : e->total_ms) mean_total += t / static_cast<double>(e->total_ms.size());
+    for (double n : e->num_tracked) mean_tracked += n / static_cast<double>(e->num_tracked.size());
+    const double median = Percentile(e->total_ms, 0.5);
+    std::printf(
+        "engine on '%s' (%d frames, object BA window %d): total %.1f ms/frame (p95 %.1f, mean "
+        "%.1f) "
+        "= %.1f frames/s at the median, %.1f at the mean; objects stage %.1f ms (p95 %.1f), of "
+        "which dynamic BA %.1f ms (p95 %.1f); process CPU %.1f ms/frame (p95 %.1f, = %.1f "
+        "frames/s on one core); tracked objects per frame mean %.1f, max %d; %d lost frames\n",
+        engine_scenario.c_str(),
+        e->frames,
+        e->object_ba_window,
+        median,
+        Percentile(e->total_ms, 0.95),
+        mean_total,
+        median > 0.0 ? 1000.0 / median : 0.0,
+        mean_total > 0.0 ? 1000.0 / mean_total : 0.0,
+        Percentile(e->objects_ms, 0.5),
+        Percentile(e->objects_ms, 0.95),
+        Percentile(e->objects_ba_ms, 0.5),
+        Percentile(e->objects_ba_ms, 0.95),
+        Percentile(e->process_cpu_ms, 0.5),
+        Percentile(e->process_cpu_ms, 0.95),
+        Percentile(e->process_cpu_ms, 0.5) > 0.0 ? 1000.0 / Percentile(e->process_cpu_ms, 0.5)
+                                                 : 0.0,
+        mean_tracked,
+        e->max_tracked,
+        e->lost_frames);
+    json << ", \"engine\": {\"scenario\": \"" << engine_scenario << "\", \"frames\": " << e->frames
+         << ", \"total_ms\": " << Stats(e->total_ms) << ", \"mean_total_ms\": " << mean_total
+         << ", \"objects_ms\": " << Stats(e->objects_ms)
+         << ", \"objects_ba_ms\": " << Stats(e->objects_ba_ms)
+         << ", \"process_cpu_ms\": " << Stats(e->process_cpu_ms)
+         << ", \"mean_tracked_objects\": " << mean_tracked
+         << ", \"max_tracked_objects\": " << e->max_tracked << "}";
   }
   json << "}\n";
   if (json_path.empty()) {
