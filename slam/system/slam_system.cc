@@ -217,7 +217,8 @@ absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r, uint32_t ve
 // ---------------------------------------------------------- parked objects
 // Instances of a-priori dynamic classes that the object stage reports as
 // standing still (parked cars) help the camera like static points: once an
-// instance has been tracked below kStillSpeed for kParkFrames consecutive
+// instance has been tracked still (held stationary by the object tracker's
+// likelihood-ratio test, or below kStillSpeed) for kParkFrames consecutive
 // frames, its keypoints are static for tracking and mapping from the next
 // frame on. It leaves the set as soon as the object stage sees it move (one
 // tracked frame above kMovingSpeed), loses it, or stops reporting it. The
@@ -252,12 +253,16 @@ void UpdateParked(const std::vector<ObjectResult>& objects,
     if (o.state == ObjectState::kLost) {
       p = ParkedLabel{0, false, frame};
     } else if (o.state == ObjectState::kTracked) {
-      if (o.speed_mps > kMovingSpeed) {
+      // Still: the tracker's likelihood-ratio test holds the object
+      // stationary (ObjectResult::stationary), or its speed is below
+      // kStillSpeed.
+      const bool still = o.stationary || o.speed_mps < kStillSpeed;
+      if (!o.stationary && o.speed_mps > kMovingSpeed) {
         VLOG_IF(1, p.parked) << "frame " << frame << ": label " << o.class_id * 1000 + o.instance_id
                              << " moves (" << o.speed_mps << " m/s): no longer parked";
         p.still_frames = 0;
         p.parked = false;
-      } else if (o.speed_mps < kStillSpeed) {
+      } else if (still) {
         p.still_frames = std::min(p.still_frames + 1, 1000);
         if (p.still_frames >= kParkFrames && !p.parked) {
           VLOG(1) << "frame " << frame << ": label " << o.class_id * 1000 + o.instance_id
