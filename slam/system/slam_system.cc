@@ -30,7 +30,8 @@ namespace {
 constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // 2: + object_ba_window_frames, object_ba_iterations, parked_objects_static
 // and the parked-instance state. Version 1 files still load (defaults).
-constexpr uint32_t kFormatVersion = 2;
+// 3: + the parked instances' camera-side check state.
+constexpr uint32_t kFormatVersion = 3;
 
 features::OrbOptions OrbOptionsFrom(const SlamOptions& o) {
   features::OrbOptions orb;
@@ -232,11 +233,23 @@ struct ParkedLabel {
   int still_frames = 0;  // consecutive tracked frames below kStillSpeed
   bool parked = false;
   int64_t last_seen = 0;  // frame counter when last reported
+  // Camera-side check while parked: share of the instance's stereo keypoints
+  // that the camera tracker kept as inlier map matches (running mean), and
+  // a frame counter before which the instance may not be parked again.
+  double inlier_share = 0.0;
+  int inlier_frames = 0;
+  int64_t no_park_before = 0;
 };
 constexpr double kStillSpeed = 0.3;   // m/s (about 1 km/h)
 constexpr double kMovingSpeed = 0.5;  // m/s
 constexpr int kParkFrames = 5;
 constexpr int64_t kForgetFrames = 10;
+// A parked instance whose inlier share drops below this fraction of its
+// running mean (with at least kMinParkedKeypoints stereo keypoints) is
+// unparked at once, and not parked again for kNoParkFrames frames.
+constexpr double kInlierDrop = 0.5;
+constexpr int kMinParkedKeypoints = 8;
+constexpr int64_t kNoParkFrames = 30;
 
 bool IsParked(const std::map<int32_t, ParkedLabel>& parked, int32_t label) {
   auto it = parked.find(label);
@@ -251,7 +264,10 @@ void UpdateParked(const std::vector<ObjectResult>& objects,
     ParkedLabel& p = (*parked)[o.class_id * 1000 + o.instance_id];
     p.last_seen = frame;
     if (o.state == ObjectState::kLost) {
-      p = ParkedLabel{0, false, frame};
+      const int64_t no_park_before = p.no_park_before;
+      p = ParkedLabel();
+      p.last_seen = frame;
+      p.no_park_before = no_park_before;
     } else if (o.state == ObjectState::kTracked) {
       // Still: the tracker's likelihood-ratio test holds the object
       // stationary (ObjectResult::stationary), or its speed is below
@@ -262,9 +278,11 @@ void UpdateParked(const std::vector<ObjectResult>& objects,
                              << " moves (" << o.speed_mps << " m/s): no longer parked";
         p.still_frames = 0;
         p.parked = false;
+        p.inlier_share = 0.0;
+        p.inlier_frames = 0;
       } else if (still) {
         p.still_frames = std::min(p.still_frames + 1, 1000);
-        if (p.still_frames >= kParkFrames && !p.parked) {
+        if (p.still_frames >= kParkFrames && !p.parked && frame >= p.no_park_before) {
           VLOG(1) << "frame " << frame << ": label " << o.class_id * 1000 + o.instance_id
                   << " parked";
           p.parked = true;
@@ -280,6 +298,44 @@ void UpdateParked(const std::vector<ObjectResult>& objects,
     } else {
       ++it;
     }
+  }
+}
+
+// The object tracker holds a parked car's pose until its motion is
+// significant and fast (ObjectTrackerOptions::stationary_leave_speed_mps),
+// which lets a car that drives off stay "parked" for several frames. The
+// camera sees it earlier: its stereo keypoints stop matching the map points
+// it left behind (the tracker's robust pose optimisation drops them). After
+// tracking, a parked instance whose share of inlier map matches falls below
+// kInlierDrop of its running mean leaves the parked set.
+void CheckParkedAgainstTracking(const map::Frame& frame,
+                                int64_t frame_no,
+                                std::map<int32_t, ParkedLabel>* parked) {
+  if (frame.features == nullptr) return;
+  const map::FrameFeatures& f = *frame.features;
+  std::map<int32_t, std::pair<int, int>> counts;  // label -> (stereo keypoints, inliers)
+  for (int i = 0; i < f.size(); ++i) {
+    if (!(f.depth[i] > 0.f) || !IsParked(*parked, f.labels[i])) continue;
+    std::pair<int, int>& c = counts[f.labels[i]];
+    ++c.first;
+    if (frame.matched[i] && frame.point_ids[i] >= 0) ++c.second;
+  }
+  for (const auto& [label, c] : counts) {
+    if (c.first < kMinParkedKeypoints) continue;
+    ParkedLabel& p = (*parked)[label];
+    const double share = static_cast<double>(c.second) / static_cast<double>(c.first);
+    if (p.inlier_frames >= 3 && share < kInlierDrop * p.inlier_share) {
+      VLOG(1) << "frame " << frame_no << ": label " << label << " inlier share " << share
+              << " (mean " << p.inlier_share << "): no longer parked";
+      p.parked = false;
+      p.still_frames = 0;
+      p.inlier_share = 0.0;
+      p.inlier_frames = 0;
+      p.no_park_before = frame_no + kNoParkFrames;
+      continue;
+    }
+    p.inlier_share = p.inlier_frames == 0 ? share : 0.7 * p.inlier_share + 0.3 * share;
+    ++p.inlier_frames;
   }
 }
 
@@ -464,6 +520,10 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
   } else {
     if (thread_ != nullptr && !thread_->idle()) thread_->InterruptBundleAdjustment();
     state = tracker_.Track(&frame, &map_);
+    if (config_.options.parked_objects_static &&
+        (state == TrackingState::kOk || state == TrackingState::kRelocalized)) {
+      CheckParkedAgainstTracking(frame, frames_processed_, &parked_);
+    }
     result.timings.push_back({"track", sw.ElapsedMs()});
     sw.Restart();
     if (state == TrackingState::kOk || state == TrackingState::kRelocalized) {
@@ -642,6 +702,9 @@ absl::Status SlamSystemImpl::Save(const std::string& path) const {
     w.Pod<int32_t>(p.still_frames);
     w.Pod<uint8_t>(p.parked);
     w.Pod(p.last_seen);
+    w.Pod(p.inlier_share);
+    w.Pod<int32_t>(p.inlier_frames);
+    w.Pod(p.no_park_before);
   }
   w.Bytes(kMagic, sizeof(kMagic));  // trailer: detects truncation
 
@@ -739,6 +802,11 @@ absl::Status SlamSystemImpl::Restore(system_io::BinaryReader* r, uint32_t versio
       p.still_frames = r->Pod<int32_t>();
       p.parked = r->Pod<uint8_t>() != 0;
       p.last_seen = r->Pod<int64_t>();
+      if (version >= 3) {
+        p.inlier_share = r->Pod<double>();
+        p.inlier_frames = r->Pod<int32_t>();
+        p.no_park_before = r->Pod<int64_t>();
+      }
     }
   }
   char trailer[8];
