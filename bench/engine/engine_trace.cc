@@ -123,7 +123,12 @@ int main(int argc, char** argv) {
         sum[kl[q].octave] += dd;
         n[kl[q].octave] += 1;
       }
-      printf("frame %d: disparity(SSD+GN) - disparity(SAD parabola) per level:", i0);
+      printf("frame %d: %zu keypoints, stereo matches %d (SAD) %d (SSD); disparity(SSD+GN) - "
+             "disparity(SAD parabola) per level:",
+             i0,
+             kl.size(),
+             s0.num_matches,
+             s1.num_matches);
       for (int l = 0; l < 8; ++l) printf(" %.3f(%d)", n[l] ? sum[l] / n[l] : 0.0, (int)n[l]);
       printf("\n");
     }

@@ -20,22 +20,6 @@ double PatchMean(const cv::Mat& img, int x, int y, int w) {
   return static_cast<double>(sum) / ((2 * w + 1) * (2 * w + 1));
 }
 
-// SSD of the zero-mean patches of `il` at (xl, y) and `ir` at (xr, y).
-double ZeroMeanSsd(
-    const cv::Mat& il, int xl, double mean_l, const cv::Mat& ir, int xr, int y, int w) {
-  const double mean_r = PatchMean(ir, xr, y, w);
-  double ssd = 0.0;
-  for (int dy = -w; dy <= w; ++dy) {
-    const uint8_t* pl = il.ptr<uint8_t>(y + dy) + xl;
-    const uint8_t* pr = ir.ptr<uint8_t>(y + dy) + xr;
-    for (int dx = -w; dx <= w; ++dx) {
-      const double e = (pl[dx] - mean_l) - (pr[dx] - mean_r);
-      ssd += e * e;
-    }
-  }
-  return ssd;
-}
-
 // Gauss-Newton on the horizontal position `x` of the right patch (row y):
 // minimises the SSD of zero-mean patches, the right one sampled bilinearly
 // with central-difference gradients. False when it leaves the image or the
@@ -180,24 +164,17 @@ StereoMatchResult MatchStereo(const geometry::StereoCamera& camera,
       }
     }
     if (best_inc == -L || best_inc == L) continue;  // minimum on the border
-    float d1 = sad_values[best_inc + L - 1];
-    float d2 = sad_values[best_inc + L];
-    float d3 = sad_values[best_inc + L + 1];
-    const bool ssd = options.subpixel == SubpixelMethod::kSsdGaussNewton;
-    if (ssd) {
-      // Zero-mean SSD is about quadratic around its minimum, so the parabola
-      // fits it; SAD is V-shaped and pulls the vertex to integers.
-      const double mean_l = PatchMean(il, su, sv, w);
-      const int xr = sur + best_inc;
-      d1 = static_cast<float>(ZeroMeanSsd(il, su, mean_l, ir, xr - 1, sv, w));
-      d2 = static_cast<float>(ZeroMeanSsd(il, su, mean_l, ir, xr, sv, w));
-      d3 = static_cast<float>(ZeroMeanSsd(il, su, mean_l, ir, xr + 1, sv, w));
-    }
+    const float d1 = sad_values[best_inc + L - 1];
+    const float d2 = sad_values[best_inc + L];
+    const float d3 = sad_values[best_inc + L + 1];
     const float denom = 2.f * (d1 + d3 - 2.f * d2);
     if (denom <= 0.f) continue;
     float delta = (d1 - d3) / denom;
     if (delta < -1.f || delta > 1.f) continue;
-    if (ssd) {
+    if (options.subpixel == SubpixelMethod::kSsdGaussNewton) {
+      // From the SAD parabola's vertex: Gauss-Newton on the zero-mean SSD,
+      // which is smooth in the shift (SAD is V-shaped around its minimum and
+      // pulls the vertex to integers).
       double x = sur + best_inc + delta;
       if (!RefineShiftGaussNewton(
               il, su, ir, sv, w, options.gauss_newton_iterations, &scratch, &x)) {

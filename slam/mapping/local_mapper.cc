@@ -551,7 +551,8 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
     const double s = 1.0 / pyramid_.scale[o.level];
     ceres::CostFunction* cost;
     ceres::LossFunction* loss;
-    if (o.uvr.z() >= 0.0 && options_.estimate_disparity_offset) {
+    if (o.uvr.z() >= 0.0 && options_.estimate_disparity_offset &&
+        o.level <= options_.disparity_offset_max_level) {
       cost = new ceres::AutoDiffCostFunction<OffsetStereoReprojection, 3, 7, 3, 1>(
           new OffsetStereoReprojection(camera_, o.uvr, o.applied_offset, s));
       loss = new ceres::HuberLoss(std::sqrt(kChi2Stereo));

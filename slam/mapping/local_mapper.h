@@ -37,17 +37,23 @@ struct MapperOptions {
   // Self-calibration of the stereo disparity offset (a horizontal
   // principal-point difference left by rectification) in the local BA, with
   // a zero-mean Gaussian prior of this standard deviation (px) at the first
-  // bundle adjustment. Off: on KITTI 06 it converges to ~0.08-0.15 px and
-  // fixes the scale (ATE 0.073 -> 0.025 m with kSsdGaussNewton), but on
-  // rendered scenes, whose true offset is 0, it drifts to -0.12 px on
-  // static_street seed 2 (ATE 0.020 -> 0.084 m): other systematic errors
-  // (keypoint positions across pyramid levels?) leak into it. See
-  // docs/math.md.
+  // bundle adjustment. Off: on KITTI 06 f0-50 it converges to 0.05-0.15 px
+  // and shrinks the scale error (SAD: ATE 0.051 -> 0.030 m, path length
+  // 1.003 -> 1.0016), but on rendered scenes, whose true offset is 0, it is
+  // not precise enough and costs ATE in every clip tried (100 frames,
+  // static_street / driving seeds 1-2: 0.016-0.031 -> 0.043-0.060 m with SAD,
+  // up to 0.105 m with kSsdGaussNewton). See docs/math.md section 7.
   bool estimate_disparity_offset = false;
   double disparity_offset_prior_sigma = 0.5;
   // Later bundle adjustments: prior centred on the current estimate with
   // this standard deviation (px; random walk of a constant parameter).
   double disparity_offset_step_sigma = 0.02;
+  // Only stereo observations up to this pyramid level inform the offset (the
+  // others use the current estimate): disparities at levels 5-7 carry their
+  // own +0.05..0.1 px bias on rendered scenes, which the offset absorbs
+  // (static_street seed 2, an earlier matcher variant: -0.11 px with all
+  // levels, 0.00 with level 0 only).
+  int disparity_offset_max_level = 0;
 };
 
 // Inputs of the keyframe decision (ORB-SLAM2's NeedNewKeyFrame, stereo).
