@@ -24,6 +24,7 @@ int main(int argc, char** argv) {
   config.camera = (*seq)->camera();
   if (argc > 1) config.options.num_features = atoi(argv[1]);
   if (getenv("THDEPTH")) config.options.max_depth_baselines = atof(getenv("THDEPTH"));
+  if (getenv("BAIT")) config.options.local_ba_iterations = atoi(getenv("BAIT"));
   // ORB micro timing
   {
     auto f = (*seq)->ReadFrame(0);
