@@ -12,7 +12,6 @@
 // the keypoint. Prints per level: count, mean and median signed error
 // (estimated - true, px), mean absolute error, and the mean error binned by
 // the fractional part of the true disparity at that level (pixel locking).
-#include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -24,6 +23,7 @@
 #include "slam/features/orb_extractor.h"
 #include "slam/features/stereo_matcher.h"
 #include "slam/io/metrics.h"
+#include "slam/sim/depth_truth.h"
 #include "slam/sim/renderer.h"
 #include "slam/sim/scenarios.h"
 #include "slam/sim/writer.h"
@@ -32,46 +32,6 @@
 using namespace twist;
 
 namespace {
-
-// Ground-truth disparity at (x, y) (level-0 pixels) from the depth buffer, if
-// the disparity is affine over a window of half-size `r` around it.
-bool PlanarDisparity(const cv::Mat& depth,
-                     double bf,
-                     double x,
-                     double y,
-                     int r,
-                     double* out,
-                     double* gx,
-                     double* gy) {
-  const int cx = static_cast<int>(std::lround(x)), cy = static_cast<int>(std::lround(y));
-  if (cx - r < 0 || cy - r < 0 || cx + r >= depth.cols || cy + r >= depth.rows) return false;
-  const int step = std::max(1, r / 4);
-  Eigen::Matrix<double, Eigen::Dynamic, 3> A;
-  Eigen::VectorXd b;
-  std::vector<Eigen::Vector3d> rows;
-  std::vector<double> vals;
-  for (int dy = -r; dy <= r; dy += step) {
-    for (int dx = -r; dx <= r; dx += step) {
-      const float z = depth.at<float>(cy + dy, cx + dx);
-      if (!std::isfinite(z) || z <= 0.f) return false;
-      rows.emplace_back(cx + dx - x, cy + dy - y, 1.0);
-      vals.push_back(bf / z);
-    }
-  }
-  A.resize(static_cast<int>(rows.size()), 3);
-  b.resize(static_cast<int>(rows.size()));
-  for (size_t i = 0; i < rows.size(); ++i) {
-    A.row(static_cast<int>(i)) = rows[i].transpose();
-    b(static_cast<int>(i)) = vals[i];
-  }
-  const Eigen::Vector3d p = A.colPivHouseholderQr().solve(b);
-  const double max_res = (A * p - b).cwiseAbs().maxCoeff();
-  if (max_res > 0.02) return false;
-  *out = p(2);
-  *gx = p(0);
-  *gy = p(1);
-  return true;
-}
 
 // Brute-force sub-pixel shift (0.01 px steps) minimising the SSD of zero-mean
 // 11x11 patches, right image sampled bilinearly. Level 0 only.
@@ -150,10 +110,7 @@ int main(int argc, char** argv) {
     std::vector<geometry::SE3d> est, gt;
     int not_ok = 0;
     for (int f = 0; f < frames; ++f) {
-      sim::Exposure el, er;
-      sim::FrameExposures(*sc, f, &el, &er);
-      const sim::StereoRender r =
-          renderer.RenderStereo(sc->scene, sc->TimeOf(f), sc->WorldFromCamera(f), el, er);
+      const sim::StereoRender r = sim::RenderScenarioFrame(renderer, *sc, f);
       StereoFrame sf;
       sf.index = f;
       sf.timestamp_ns = static_cast<int64_t>(std::llround(sc->TimeOf(f) * 1e9)) + 1000;
@@ -193,10 +150,7 @@ int main(int argc, char** argv) {
   int bf_n = 0;
   int slope_n[3] = {0, 0, 0};
   for (int f = 0; f < frames; ++f) {
-    sim::Exposure el, er;
-    sim::FrameExposures(*sc, f, &el, &er);
-    const sim::StereoRender r =
-        renderer.RenderStereo(sc->scene, sc->TimeOf(f), sc->WorldFromCamera(f), el, er);
+    const sim::StereoRender r = sim::RenderScenarioFrame(renderer, *sc, f);
     std::vector<cv::KeyPoint> kl, kr;
     cv::Mat dl, dr;
     std::vector<cv::Mat> ll, lr;
@@ -208,11 +162,10 @@ int main(int argc, char** argv) {
       const int l = kl[q].octave;
       const double s = orb.pyramid().scale[l];
       const int radius = static_cast<int>(std::ceil((smo.sad_half_window + 1) * s));
-      double gt = 0.0, gx = 0.0, gy = 0.0;
-      if (!PlanarDisparity(
-              r.depth, sc->camera.bf(), kl[q].pt.x, kl[q].pt.y, radius, &gt, &gx, &gy)) {
-        continue;
-      }
+      const auto truth =
+          sim::PlanarDisparity(r.depth, sc->camera.bf(), kl[q].pt.x, kl[q].pt.y, radius);
+      if (!truth) continue;
+      const double gt = truth->disparity, gx = truth->gx;
       ++matched[l];
       const double e = (kl[q].pt.x - st.u_right[q]) - gt;
       if (std::abs(e) > 1.0 * s) {

@@ -8,7 +8,6 @@
 // 0.06 px at levels 3-4, within three standard errors of zero.
 #include <gtest/gtest.h>
 
-#include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -16,40 +15,12 @@
 
 #include "slam/features/orb_extractor.h"
 #include "slam/features/stereo_matcher.h"
+#include "slam/sim/depth_truth.h"
 #include "slam/sim/renderer.h"
 #include "slam/sim/scenarios.h"
-#include "slam/sim/writer.h"
 
 namespace twist::features {
 namespace {
-
-// Ground-truth disparity at (x, y) when the disparity is affine (a plane) to
-// 0.02 px over the window of half-size r around it.
-bool PlanarDisparity(const cv::Mat& depth, double bf, double x, double y, int r, double* out) {
-  const int cx = static_cast<int>(std::lround(x)), cy = static_cast<int>(std::lround(y));
-  if (cx - r < 0 || cy - r < 0 || cx + r >= depth.cols || cy + r >= depth.rows) return false;
-  const int step = std::max(1, r / 4);
-  std::vector<Eigen::Vector3d> rows;
-  std::vector<double> values;
-  for (int dy = -r; dy <= r; dy += step) {
-    for (int dx = -r; dx <= r; dx += step) {
-      const float z = depth.at<float>(cy + dy, cx + dx);
-      if (!std::isfinite(z) || z <= 0.f) return false;
-      rows.emplace_back(cx + dx - x, cy + dy - y, 1.0);
-      values.push_back(bf / z);
-    }
-  }
-  Eigen::MatrixXd A(static_cast<int>(rows.size()), 3);
-  Eigen::VectorXd b(static_cast<int>(rows.size()));
-  for (size_t i = 0; i < rows.size(); ++i) {
-    A.row(static_cast<int>(i)) = rows[i].transpose();
-    b(static_cast<int>(i)) = values[i];
-  }
-  const Eigen::Vector3d p = A.colPivHouseholderQr().solve(b);
-  if ((A * p - b).cwiseAbs().maxCoeff() > 0.02) return false;
-  *out = p(2);
-  return true;
-}
 
 struct LevelStats {
   std::vector<double> signed_error;  // estimated - true disparity (level-0 px)
@@ -66,10 +37,7 @@ std::vector<LevelStats> Measure(SubpixelMethod method, int frames) {
   options.subpixel = method;
   std::vector<LevelStats> stats(orb.options().num_levels);
   for (int f = 0; f < frames; ++f) {
-    sim::Exposure el, er;
-    sim::FrameExposures(*sc, f, &el, &er);
-    const sim::StereoRender r =
-        renderer.RenderStereo(sc->scene, sc->TimeOf(f), sc->WorldFromCamera(f), el, er);
+    const sim::StereoRender r = sim::RenderScenarioFrame(renderer, *sc, f);
     std::vector<cv::KeyPoint> kl, kr;
     cv::Mat dl, dr;
     std::vector<cv::Mat> ll, lr;
@@ -82,11 +50,10 @@ std::vector<LevelStats> Measure(SubpixelMethod method, int frames) {
       const int level = kl[q].octave;
       const double s = orb.pyramid().scale[level];
       const int radius = static_cast<int>(std::ceil((options.sad_half_window + 1) * s));
-      double gt = 0.0;
-      if (!PlanarDisparity(r.depth, sc->camera.bf(), kl[q].pt.x, kl[q].pt.y, radius, &gt)) {
-        continue;
-      }
-      const double e = (kl[q].pt.x - st.u_right[q]) - gt;
+      const auto truth =
+          sim::PlanarDisparity(r.depth, sc->camera.bf(), kl[q].pt.x, kl[q].pt.y, radius);
+      if (!truth) continue;
+      const double e = (kl[q].pt.x - st.u_right[q]) - truth->disparity;
       if (std::abs(e) > s) continue;  // wrong matches (repetitive texture)
       stats[level].signed_error.push_back(e);
     }
