@@ -359,17 +359,21 @@ bool ObjectTracker::Track(const FrameContext& ctx,
     add_obs(flow_idx[j], *q, stereo_at(*q, flow_idx[j]));
   }
   const Matrix6d projector = o->joint.WorldProjector();
-  std::optional<TwistEstimate> est;
-  if (static_cast<int>(obs.size()) >= options_.min_points_to_track) {
+  // The constrained twist from the current observations, when there are
+  // enough of them and the solver converged.
+  auto estimate = [&](const Vector6d& start) -> std::optional<TwistEstimate> {
+    if (static_cast<int>(obs.size()) < options_.min_points_to_track) return std::nullopt;
     absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_,
                                                           f.camera_from_world,
                                                           o->world_from_object,
                                                           projector,
                                                           obs,
-                                                          initial,
+                                                          start,
                                                           options_.estimator);
-    if (e.ok() && e->success) est = *e;
-  }
+    if (!e.ok() || !e->success) return std::nullopt;
+    return *std::move(e);
+  };
+  std::optional<TwistEstimate> est = estimate(initial);
 
   if (options_.refine_by_projection) {
     // Project the points with the current estimate (or the prediction) and
@@ -433,17 +437,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       est->inliers.assign(obs.size(), true);
     };
     if (obs.size() > before || !est) {
-      std::optional<TwistEstimate> refined;
-      if (static_cast<int>(obs.size()) >= options_.min_points_to_track) {
-        absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_,
-                                                              f.camera_from_world,
-                                                              o->world_from_object,
-                                                              projector,
-                                                              obs,
-                                                              est ? est->twist : initial,
-                                                              options_.estimator);
-        if (e.ok() && e->success) refined = *e;
-      }
+      std::optional<TwistEstimate> refined = estimate(est ? est->twist : initial);
       // Matches around a wrong projection can agree on a wrong pose
       // (repetitive texture): the refined estimate must explain most of the
       // flow inliers.
