@@ -48,11 +48,9 @@ struct ObjectStageOptions {
   int max_plane_points = 4000;      // per plane class (oldest dropped)
   double plane_inlier_m = 0.05;     // RANSAC inlier distance
   // Dynamic BA over the last frames (0: off). The window is also bounded by
-  // SlamOptions::temporal_window_s. Off by default: Ceres orders parameter
-  // blocks by address inside the Schur groups, so two identical runs differ
-  // in the last bits, which breaks the synchronous mode's exact determinism.
-  // With 10 frames it lowers the lead car's ATE on `driving` from 0.12 to
-  // 0.09 m for about 20 ms per frame (objects_e2e_test figures).
+  // SlamOptions::temporal_window_s. SlamSystem sets it from
+  // SlamOptions::object_ba_window_frames (10 by default; the solve is
+  // bit-deterministic, see dynamic_ba.cc); 0 here for a stage built alone.
   int ba_window_frames = 0;
   int ba_iterations = 5;
 };
