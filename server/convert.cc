@@ -333,6 +333,11 @@ absl::Status ApplyOptions(const pb::SlamOptions& in, SlamOptions* options) {
     options->temporal_window_s = in.temporal_window_s();
   }
   if (in.has_seed()) options->seed = in.seed();
+  if (in.has_object_ba_window_frames()) {
+    options->object_ba_window_frames = in.object_ba_window_frames();
+  }
+  if (in.has_object_ba_iterations()) options->object_ba_iterations = in.object_ba_iterations();
+  if (in.has_parked_objects_static()) options->parked_objects_static = in.parked_objects_static();
   return absl::OkStatus();
 }
 
@@ -352,6 +357,9 @@ void ToProto(const SlamOptions& options, pb::SlamOptions* out) {
   out->set_constrain_objects(options.constrain_objects);
   out->set_temporal_window_s(options.temporal_window_s);
   out->set_seed(options.seed);
+  out->set_object_ba_window_frames(options.object_ba_window_frames);
+  out->set_object_ba_iterations(options.object_ba_iterations);
+  out->set_parked_objects_static(options.parked_objects_static);
 }
 
 void ToProto(const geometry::StereoCamera& camera, pb::StereoCalibration* out) {

@@ -67,6 +67,9 @@ pb::SessionConfig SessionConfigToProto(const SessionConfig& config) {
   po->set_constrain_objects(o.constrain_objects);
   po->set_temporal_window_s(o.temporal_window_s);
   po->set_seed(o.seed);
+  po->set_object_ba_window_frames(o.object_ba_window_frames);
+  po->set_object_ba_iterations(o.object_ba_iterations);
+  po->set_parked_objects_static(o.parked_objects_static);
   return out;
 }
 

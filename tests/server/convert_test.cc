@@ -248,6 +248,20 @@ TEST(Convert, OptionsOverrideOnlyWhatIsSet) {
   pb::SlamOptions out;
   ToProto(options, &out);
   EXPECT_EQ(out.num_levels(), 3);
+  EXPECT_EQ(out.object_ba_window_frames(), options.object_ba_window_frames);
+
+  // The objects' BA and parked-instance switches travel too (range checks
+  // are the engine's, when the session is created).
+  pb::SlamOptions objects;
+  objects.set_object_ba_window_frames(0);
+  objects.set_object_ba_iterations(4);
+  objects.set_parked_objects_static(true);
+  SlamOptions o2;
+  ASSERT_TRUE(ApplyOptions(objects, &o2).ok());
+  EXPECT_EQ(o2.object_ba_window_frames, 0);
+  EXPECT_EQ(o2.object_ba_iterations, 4);
+  EXPECT_TRUE(o2.parked_objects_static);
+  EXPECT_EQ(o2.num_features, SlamOptions().num_features);
 }
 
 TEST(Convert, CalibrationValidation) {
