@@ -155,6 +155,26 @@ joints::Joint ObjectTracker::EffectiveJoint(const joints::Joint& joint) const {
   return joints::Joint(joints::JointType::kFree, joint.world_from_joint());
 }
 
+ObjectTracker::State ObjectTracker::GetState() const {
+  State s;
+  s.objects = objects_;
+  s.next_object_id = next_object_id_;
+  s.prev_left = prev_left_;
+  s.prev_timestamp_ns = prev_timestamp_ns_;
+  s.has_prev = has_prev_;
+  s.stats = stats_;
+  return s;
+}
+
+void ObjectTracker::SetState(State state) {
+  objects_ = std::move(state.objects);
+  next_object_id_ = state.next_object_id;
+  prev_left_ = std::move(state.prev_left);
+  prev_timestamp_ns_ = state.prev_timestamp_ns;
+  has_prev_ = state.has_prev;
+  stats_ = state.stats;
+}
+
 ObjectResult ObjectTracker::ToResult(const TrackedObject& o) {
   ObjectResult r;
   r.id = o.id;

@@ -206,6 +206,19 @@ class ObjectTracker {
   // Lets the dynamic bundle adjustment write back refined poses and points.
   TrackedObject* mutable_object(int64_t id);
 
+  // Everything that evolves from frame to frame (the camera and options come
+  // from the configuration); SlamSystem::Save/Load persist it.
+  struct State {
+    std::map<int64_t, TrackedObject> objects;
+    int64_t next_object_id = 1;
+    cv::Mat prev_left;
+    int64_t prev_timestamp_ns = 0;
+    bool has_prev = false;
+    ObjectTrackerStats stats;
+  };
+  State GetState() const;
+  void SetState(State state);
+
   // Converts a tracked object to the engine's per-frame result.
   static ObjectResult ToResult(const TrackedObject& object);
 

@@ -111,6 +111,14 @@ class ClusterAssociator {
     dynamic_classes_ = std::move(classes);
   }
 
+  // Persistence (SlamSystem::Save/Load): the tracks and the id counter; the
+  // options and dynamic classes come from the configuration.
+  int64_t next_id() const { return next_id_; }
+  void RestoreState(std::map<int64_t, ClusterTrack> clusters, int64_t next_id) {
+    clusters_ = std::move(clusters);
+    next_id_ = next_id;
+  }
+
  private:
   ClusterAssociationOptions options_;
   std::map<int64_t, ClusterTrack> clusters_;

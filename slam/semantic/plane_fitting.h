@@ -79,6 +79,16 @@ class ClusterPlane {
   const Eigen::Vector4d& plane() const { return plane_; }
   int num_points_at_fit() const { return num_points_at_fit_; }
   int num_inliers() const { return num_inliers_; }
+  // Persistence (SlamSystem::Save/Load): restores what the getters returned.
+  void RestoreState(bool has_plane,
+                    const Eigen::Vector4d& plane,
+                    int num_points_at_fit,
+                    int num_inliers) {
+    has_plane_ = has_plane;
+    plane_ = plane;
+    num_points_at_fit_ = num_points_at_fit;
+    num_inliers_ = num_inliers;
+  }
 
  private:
   Options options_;

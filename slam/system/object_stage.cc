@@ -4,7 +4,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <opencv2/imgproc.hpp>
 #include <optional>
+#include <sstream>
 #include <tuple>
 #include <unordered_set>
 
@@ -13,6 +15,7 @@
 #include "slam/objects/joint_frames.h"
 #include "slam/objects/object_ba.h"
 #include "slam/semantic/panoptic.h"
+#include "slam/system/binary_io.h"
 
 namespace twist {
 namespace {
@@ -296,6 +299,434 @@ void ObjectStage::RunDynamicBa(std::vector<ObjectResult>* results) {
     auto it = tracker_.objects().find(o.id);
     if (it != tracker_.objects().end()) o = objects::ObjectTracker::ToResult(it->second);
   }
+}
+
+}  // namespace twist
+
+// ------------------------------------------------------------- persistence
+namespace twist {
+namespace {
+
+using system_io::BinaryReader;
+using system_io::BinaryWriter;
+
+template <typename Derived>
+void WriteVec(const Eigen::MatrixBase<Derived>& v, BinaryWriter* w) {
+  for (Eigen::Index i = 0; i < v.size(); ++i) w->Pod<double>(v[i]);
+}
+template <typename Vec>
+Vec ReadVec(BinaryReader* r) {
+  Vec v;
+  for (Eigen::Index i = 0; i < v.size(); ++i) v[i] = r->Pod<double>();
+  return v;
+}
+
+void WriteRect(const cv::Rect2d& b, BinaryWriter* w) {
+  w->Pod(b.x);
+  w->Pod(b.y);
+  w->Pod(b.width);
+  w->Pod(b.height);
+}
+cv::Rect2d ReadRect(BinaryReader* r) {
+  cv::Rect2d b;
+  b.x = r->Pod<double>();
+  b.y = r->Pod<double>();
+  b.width = r->Pod<double>();
+  b.height = r->Pod<double>();
+  return b;
+}
+
+// A pose whose parameters are not finite or whose quaternion is far from
+// unit length marks the reader failed (SE3 would normalise garbage).
+SE3d ReadPose(BinaryReader* r) {
+  double p[7];
+  for (double& v : p) v = r->Pod<double>();
+  if (!r->ok()) return SE3d();
+  double qn = 0.0;
+  for (int i = 0; i < 7; ++i) {
+    if (!std::isfinite(p[i])) {
+      r->Fail();
+      return SE3d();
+    }
+    if (i < 4) qn += p[i] * p[i];
+  }
+  if (std::abs(qn - 1.0) > 1e-6) {
+    r->Fail();
+    return SE3d();
+  }
+  return system_io::PoseFromParamsExact(p);
+}
+
+void WriteJoint(const joints::Joint& j, BinaryWriter* w) {
+  w->Pod<int32_t>(static_cast<int32_t>(j.type()));
+  w->Pod(j.pitch());
+  w->Pose(j.world_from_joint());
+}
+joints::Joint ReadJoint(BinaryReader* r) {
+  const int32_t type = r->Pod<int32_t>();
+  const double pitch = r->Pod<double>();
+  const SE3d pose = ReadPose(r);
+  if (!r->ok() || type < 0 || type >= joints::kNumJointTypes || !std::isfinite(pitch)) {
+    r->Fail();
+    return joints::Joint();
+  }
+  return joints::Joint(static_cast<joints::JointType>(type), pose, pitch);
+}
+
+void WriteObservations(const std::vector<objects::ObjectPointObservation>& obs, BinaryWriter* w) {
+  w->Pod<uint64_t>(obs.size());
+  for (const auto& o : obs) {
+    w->Pod(o.point_id);
+    WriteVec(o.uv, w);
+    w->Pod(o.u_right);
+  }
+}
+std::vector<objects::ObjectPointObservation> ReadObservations(BinaryReader* r) {
+  std::vector<objects::ObjectPointObservation> obs(r->Count(32));
+  for (auto& o : obs) {
+    o.point_id = r->Pod<int64_t>();
+    o.uv = ReadVec<Eigen::Vector2d>(r);
+    o.u_right = r->Pod<double>();
+  }
+  return obs;
+}
+
+template <typename Enum>
+Enum ReadEnum(BinaryReader* r, int32_t max_value) {
+  const int32_t v = r->Pod<int32_t>();
+  if (v < 0 || v > max_value) {
+    r->Fail();
+    return static_cast<Enum>(0);
+  }
+  return static_cast<Enum>(v);
+}
+
+void WriteTrackedObject(const objects::TrackedObject& o, BinaryWriter* w) {
+  w->Pod(o.id);
+  w->Pod(o.cluster_id);
+  w->Pod<int32_t>(o.class_id);
+  w->Pod<int32_t>(o.instance_id);
+  w->Pod<int32_t>(static_cast<int32_t>(o.state));
+  WriteJoint(o.joint, w);
+  w->Pose(o.world_from_object);
+  WriteVec(o.twist_step, w);
+  w->Pod(o.step_seconds);
+  w->Pod<uint64_t>(o.points.size());
+  for (const objects::ObjectPoint& p : o.points) {
+    w->Pod(p.id);
+    WriteVec(p.point_in_object, w);
+    w->Mat(p.descriptor);
+    w->Mat(p.patch);
+    WriteVec(p.last_uv, w);
+    w->Pod<uint8_t>(p.seen_last_frame);
+    w->Pod<int32_t>(p.num_observations);
+  }
+  w->Pod<int32_t>(o.frames_lost);
+  w->Pod(o.last_seen_frame);
+  WriteRect(o.last_box, w);
+  w->Pod<uint64_t>(o.history.size());
+  for (const objects::ObjectPoseSample& s : o.history) {
+    w->Pod(s.frame_index);
+    w->Pod(s.timestamp_ns);
+    w->Pose(s.world_from_object);
+    WriteVec(s.twist_step, w);
+    WriteObservations(s.observations, w);
+  }
+  w->Pod(o.next_point_id);
+  WriteObservations(o.pending_observations, w);
+  w->Pod<int32_t>(o.insignificant_steps);
+  w->Pod<uint8_t>(o.stationary);
+  w->Pod<int32_t>(o.last_num_inliers);
+  w->Pod(o.last_sigma_px);
+}
+
+objects::TrackedObject ReadTrackedObject(BinaryReader* r) {
+  objects::TrackedObject o;
+  o.id = r->Pod<int64_t>();
+  o.cluster_id = r->Pod<int64_t>();
+  o.class_id = r->Pod<int32_t>();
+  o.instance_id = r->Pod<int32_t>();
+  o.state = ReadEnum<ObjectState>(r, static_cast<int32_t>(ObjectState::kLost));
+  o.joint = ReadJoint(r);
+  o.world_from_object = ReadPose(r);
+  o.twist_step = ReadVec<geometry::Vector6d>(r);
+  o.step_seconds = r->Pod<double>();
+  const uint64_t np = r->Count(77);  // the smallest point (empty images)
+  o.points.reserve(np);
+  for (uint64_t k = 0; k < np && r->ok(); ++k) {
+    objects::ObjectPoint p;
+    p.id = r->Pod<int64_t>();
+    p.point_in_object = ReadVec<Eigen::Vector3d>(r);
+    p.descriptor = r->Mat();
+    p.patch = r->Mat();
+    p.last_uv = ReadVec<Eigen::Vector2d>(r);
+    p.seen_last_frame = r->Pod<uint8_t>() != 0;
+    p.num_observations = r->Pod<int32_t>();
+    o.points.push_back(std::move(p));
+  }
+  o.frames_lost = r->Pod<int32_t>();
+  o.last_seen_frame = r->Pod<int64_t>();
+  o.last_box = ReadRect(r);
+  const uint64_t nh = r->Count(128);
+  for (uint64_t k = 0; k < nh && r->ok(); ++k) {
+    objects::ObjectPoseSample s;
+    s.frame_index = r->Pod<int64_t>();
+    s.timestamp_ns = r->Pod<int64_t>();
+    s.world_from_object = ReadPose(r);
+    s.twist_step = ReadVec<geometry::Vector6d>(r);
+    s.observations = ReadObservations(r);
+    o.history.push_back(std::move(s));
+  }
+  o.next_point_id = r->Pod<int64_t>();
+  o.pending_observations = ReadObservations(r);
+  o.insignificant_steps = r->Pod<int32_t>();
+  o.stationary = r->Pod<uint8_t>() != 0;
+  o.last_num_inliers = r->Pod<int32_t>();
+  o.last_sigma_px = r->Pod<double>();
+  return o;
+}
+
+// Full-image CV_8UC1 masks are mostly zero: only the bounding box of their
+// non-zero pixels is stored (the rest is restored as zeros, bit-exactly).
+void WriteMask(const cv::Mat& m, BinaryWriter* w) {
+  const bool compact = !m.empty() && m.type() == CV_8UC1;
+  w->Pod<uint8_t>(compact);
+  if (!compact) {
+    w->Mat(m);
+    return;
+  }
+  const cv::Rect roi = cv::boundingRect(m);
+  w->Pod<int32_t>(m.rows);
+  w->Pod<int32_t>(m.cols);
+  w->Pod<int32_t>(roi.x);
+  w->Pod<int32_t>(roi.y);
+  w->Mat(m(roi));
+}
+cv::Mat ReadMask(BinaryReader* r, const cv::Size& image_size) {
+  if (r->Pod<uint8_t>() == 0) return r->Mat();
+  const int rows = r->Pod<int32_t>();
+  const int cols = r->Pod<int32_t>();
+  const int x = r->Pod<int32_t>();
+  const int y = r->Pod<int32_t>();
+  const cv::Mat crop = r->Mat();
+  // Only image-sized masks are valid (checked by the caller); refuse other
+  // sizes before allocating.
+  if (!r->ok() || rows != image_size.height || cols != image_size.width || x < 0 || y < 0 ||
+      (!crop.empty() && crop.type() != CV_8UC1) || crop.cols > cols - x || crop.rows > rows - y) {
+    r->Fail();
+    return cv::Mat();
+  }
+  cv::Mat m(rows, cols, CV_8UC1, cv::Scalar(0));
+  if (!crop.empty()) crop.copyTo(m(cv::Rect(x, y, crop.cols, crop.rows)));
+  return m;
+}
+
+void WriteCluster(const semantic::ClusterTrack& c, BinaryWriter* w) {
+  w->Pod(c.id);
+  w->Pod<int32_t>(c.class_id);
+  w->Pod<int32_t>(c.instance_id);
+  w->Pod<uint8_t>(c.is_stuff);
+  w->Pod<int32_t>(static_cast<int32_t>(c.state));
+  WriteRect(c.last_box, w);
+  WriteMask(c.last_mask, w);
+  w->Pod<uint8_t>(c.predicted_box.has_value());
+  WriteRect(c.predicted_box.value_or(cv::Rect2d()), w);
+  WriteMask(c.predicted_mask, w);
+  std::vector<int64_t> ids(c.point_ids.begin(), c.point_ids.end());
+  std::sort(ids.begin(), ids.end());
+  w->PodVector(ids);
+  w->Pod<int32_t>(c.frames_since_seen);
+  w->Pod<int32_t>(c.num_frames_seen);
+}
+
+semantic::ClusterTrack ReadCluster(BinaryReader* r, const cv::Size& image_size) {
+  semantic::ClusterTrack c;
+  c.id = r->Pod<int64_t>();
+  c.class_id = r->Pod<int32_t>();
+  c.instance_id = r->Pod<int32_t>();
+  c.is_stuff = r->Pod<uint8_t>() != 0;
+  c.state =
+      ReadEnum<semantic::ClusterState>(r, static_cast<int32_t>(semantic::ClusterState::kLost));
+  c.last_box = ReadRect(r);
+  c.last_mask = ReadMask(r, image_size);
+  const bool has_prediction = r->Pod<uint8_t>() != 0;
+  const cv::Rect2d predicted = ReadRect(r);
+  if (has_prediction) c.predicted_box = predicted;
+  c.predicted_mask = ReadMask(r, image_size);
+  const std::vector<int64_t> ids = r->PodVector<int64_t>();
+  c.point_ids.insert(ids.begin(), ids.end());
+  c.frames_since_seen = r->Pod<int32_t>();
+  c.num_frames_seen = r->Pod<int32_t>();
+  return c;
+}
+
+}  // namespace
+
+void ObjectStage::Write(BinaryWriter* w) const {
+  // Clusters.
+  w->Pod<uint64_t>(associator_.clusters().size());
+  for (const auto& [id, c] : associator_.clusters()) WriteCluster(c, w);
+  w->Pod(associator_.next_id());
+  // Planes (one per plane class of the configuration).
+  w->Pod<uint64_t>(planes_.size());
+  for (const auto& [cls, ps] : planes_) {
+    w->Pod<int32_t>(cls);
+    w->Pod<uint8_t>(ps.plane.has_plane());
+    WriteVec(ps.plane.plane(), w);
+    w->Pod<int32_t>(ps.plane.num_points_at_fit());
+    w->Pod<int32_t>(ps.plane.num_inliers());
+    w->Pod<uint64_t>(ps.points.size());
+    for (const Eigen::Vector3d& p : ps.points) WriteVec(p, w);
+    w->Pod(ps.cluster_id);
+  }
+  // Tracked objects.
+  const objects::ObjectTracker::State ts = tracker_.GetState();
+  w->Pod<uint64_t>(ts.objects.size());
+  for (const auto& [id, o] : ts.objects) WriteTrackedObject(o, w);
+  w->Pod(ts.next_object_id);
+  w->Mat(ts.prev_left);
+  w->Pod(ts.prev_timestamp_ns);
+  w->Pod<uint8_t>(ts.has_prev);
+  w->Pod<int32_t>(ts.stats.tracked);
+  w->Pod<int32_t>(ts.stats.created);
+  w->Pod<int32_t>(ts.stats.reidentified);
+  w->Pod<int32_t>(ts.stats.lost);
+  w->Pod<int32_t>(ts.stats.removed);
+  // Axis joints, the RANSAC generator, the BA window.
+  w->Pod<uint64_t>(axis_joints_.size());
+  for (const auto& [cluster, joint] : axis_joints_) {
+    w->Pod(cluster);
+    WriteJoint(joint, w);
+  }
+  std::ostringstream rng;
+  rng << rng_;
+  w->String(rng.str());
+  w->Pod<uint64_t>(window_.size());
+  for (const auto& [index, ts_ns, pose] : window_) {
+    w->Pod(index);
+    w->Pod(ts_ns);
+    w->Pose(pose);
+  }
+}
+
+absl::Status ObjectStage::Read(BinaryReader* r) {
+  auto corrupt = [](const std::string& what) {
+    return absl::DataLossError("state file has corrupt object state: " + what);
+  };
+  const cv::Size image_size(config_.camera.width, config_.camera.height);
+  std::map<int64_t, semantic::ClusterTrack> clusters;
+  const uint64_t nc = r->Count(100);
+  for (uint64_t k = 0; k < nc && r->ok(); ++k) {
+    semantic::ClusterTrack c = ReadCluster(r, image_size);
+    if (!r->ok() || !clusters.emplace(c.id, std::move(c)).second) return corrupt("clusters");
+  }
+  auto bad_mask = [&](const cv::Mat& m) {
+    return !m.empty() && (m.type() != CV_8UC1 || m.size() != image_size);
+  };
+  for (const auto& [id, c] : clusters) {
+    if (bad_mask(c.last_mask) || bad_mask(c.predicted_mask)) return corrupt("cluster mask");
+  }
+  const int64_t next_cluster_id = r->Pod<int64_t>();
+  if (!r->ok() || (!clusters.empty() && next_cluster_id <= clusters.rbegin()->first)) {
+    return corrupt("clusters");
+  }
+
+  std::map<int, PlaneState> planes = planes_;
+  const uint64_t npl = r->Count(30);
+  if (!r->ok() || npl != planes.size()) return corrupt("planes (configuration mismatch)");
+  for (uint64_t k = 0; k < npl && r->ok(); ++k) {
+    auto it = planes.find(r->Pod<int32_t>());
+    if (it == planes.end()) return corrupt("plane class not in the configuration");
+    const bool has_plane = r->Pod<uint8_t>() != 0;
+    const Eigen::Vector4d plane = ReadVec<Eigen::Vector4d>(r);
+    const int at_fit = r->Pod<int32_t>();
+    const int inliers = r->Pod<int32_t>();
+    it->second.plane.RestoreState(has_plane, plane, at_fit, inliers);
+    const uint64_t np = r->Count(24);
+    it->second.points.clear();
+    for (uint64_t i = 0; i < np && r->ok(); ++i) {
+      it->second.points.push_back(ReadVec<Eigen::Vector3d>(r));
+    }
+    it->second.cluster_id = r->Pod<int64_t>();
+    if (!r->ok() || !plane.allFinite() || (has_plane && plane.head<3>().norm() < 1e-9)) {
+      return corrupt("plane");
+    }
+  }
+
+  objects::ObjectTracker::State ts;
+  const uint64_t no = r->Count(200);
+  for (uint64_t k = 0; k < no && r->ok(); ++k) {
+    objects::TrackedObject o = ReadTrackedObject(r);
+    if (!r->ok() || !ts.objects.emplace(o.id, std::move(o)).second) return corrupt("objects");
+  }
+  ts.next_object_id = r->Pod<int64_t>();
+  ts.prev_left = r->Mat();
+  ts.prev_timestamp_ns = r->Pod<int64_t>();
+  ts.has_prev = r->Pod<uint8_t>() != 0;
+  ts.stats.tracked = r->Pod<int32_t>();
+  ts.stats.created = r->Pod<int32_t>();
+  ts.stats.reidentified = r->Pod<int32_t>();
+  ts.stats.lost = r->Pod<int32_t>();
+  ts.stats.removed = r->Pod<int32_t>();
+  if (!r->ok() || (!ts.objects.empty() && ts.next_object_id <= ts.objects.rbegin()->first)) {
+    return corrupt("objects");
+  }
+  if (!ts.prev_left.empty() &&
+      (ts.prev_left.type() != CV_8UC1 || ts.prev_left.cols != config_.camera.width ||
+       ts.prev_left.rows != config_.camera.height)) {
+    return corrupt("previous image");
+  }
+  const int patch_side = 2 * objects::ObjectTrackerOptions().search.patch_half_size + 1;
+  for (const auto& [id, o] : ts.objects) {
+    if (!o.twist_step.allFinite() || !std::isfinite(o.step_seconds) ||
+        !std::isfinite(o.last_sigma_px)) {
+      return corrupt("object twist");
+    }
+    for (const objects::ObjectPoseSample& h : o.history) {
+      if (!h.twist_step.allFinite()) return corrupt("object history");
+    }
+    for (const objects::ObjectPoint& p : o.points) {
+      if (!p.point_in_object.allFinite() || !p.last_uv.allFinite()) return corrupt("object point");
+      // ORB descriptors (32 bytes) and square patches of the tracker's size.
+      if (!p.descriptor.empty() &&
+          (p.descriptor.type() != CV_8UC1 || p.descriptor.rows != 1 || p.descriptor.cols != 32)) {
+        return corrupt("point descriptor");
+      }
+      if (!p.patch.empty() && (p.patch.type() != CV_32FC1 || p.patch.rows != patch_side ||
+                               p.patch.cols != patch_side)) {
+        return corrupt("point patch");
+      }
+    }
+  }
+
+  std::map<int64_t, joints::Joint> axis_joints;
+  const uint64_t nj = r->Count(68);
+  for (uint64_t k = 0; k < nj && r->ok(); ++k) {
+    const int64_t cluster = r->Pod<int64_t>();
+    axis_joints[cluster] = ReadJoint(r);
+  }
+  std::mt19937_64 rng;
+  {
+    std::istringstream in(r->String());
+    in >> rng;
+    if (!r->ok() || in.fail()) return corrupt("random generator");
+  }
+  std::deque<std::tuple<int64_t, int64_t, SE3d>> window;
+  const uint64_t nw = r->Count(72);
+  for (uint64_t k = 0; k < nw && r->ok(); ++k) {
+    const int64_t index = r->Pod<int64_t>();
+    const int64_t ts_ns = r->Pod<int64_t>();
+    window.emplace_back(index, ts_ns, ReadPose(r));
+  }
+  if (!r->ok()) return corrupt("axis joints or BA window");
+
+  associator_.RestoreState(std::move(clusters), next_cluster_id);
+  planes_ = std::move(planes);
+  tracker_.SetState(std::move(ts));
+  axis_joints_ = std::move(axis_joints);
+  rng_ = rng;
+  window_ = std::move(window);
+  return absl::OkStatus();
 }
 
 }  // namespace twist

@@ -19,7 +19,8 @@
 //
 // Per-session state only (no globals); deterministic for a given input
 // sequence (RANSAC draws from a generator seeded with SlamOptions::seed).
-// Not persisted by SlamSystem::Save: objects restart after a resume.
+// Persisted by SlamSystem::Save (state format >= 4, Write/Read below): a
+// resumed session continues the object tracks exactly as an uninterrupted one.
 #pragma once
 
 #include <cstdint>
@@ -41,6 +42,11 @@
 #include "slam/system/slam_options.h"
 
 namespace twist {
+
+namespace system_io {
+class BinaryWriter;
+class BinaryReader;
+}  // namespace system_io
 
 struct ObjectStageOptions {
   int min_segment_pixels = 400;     // smaller instance segments are ignored
@@ -87,6 +93,14 @@ class ObjectStage {
   static cv::Mat FavourMask(const cv::Mat& panoptic, const joints::ClassTable& classes);
 
   const objects::ObjectTracker& tracker() const { return tracker_; }
+
+  // Persistence (SlamSystem::Save/Load): everything that evolves from frame
+  // to frame (clusters, planes and their points, tracked objects, axis joints,
+  // the RANSAC generator, the BA window); the configuration is the caller's.
+  // Read() expects a stage freshly built from the same configuration and
+  // returns DataLoss (never crashes) on truncated or inconsistent data.
+  void Write(system_io::BinaryWriter* w) const;
+  absl::Status Read(system_io::BinaryReader* r);
 
  private:
   struct PlaneState {

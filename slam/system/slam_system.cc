@@ -31,7 +31,10 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // 2: + object_ba_window_frames, object_ba_iterations, parked_objects_static
 // and the parked-instance state. Version 1 files still load (defaults).
 // 3: + the parked instances' camera-side check state.
-constexpr uint32_t kFormatVersion = 3;
+// 4: + the object stage (clusters, planes, tracked objects, axis joints, RANSAC
+// generator, BA window: ObjectStage::Write). Older files still load; their
+// objects restart after the resume.
+constexpr uint32_t kFormatVersion = 4;
 
 features::OrbOptions OrbOptionsFrom(const SlamOptions& o) {
   features::OrbOptions orb;
@@ -706,6 +709,8 @@ absl::Status SlamSystemImpl::Save(const std::string& path) const {
     w.Pod<int32_t>(p.inlier_frames);
     w.Pod(p.no_park_before);
   }
+  w.Pod<uint8_t>(objects_ != nullptr);
+  if (objects_ != nullptr) objects_->Write(&w);
   w.Bytes(kMagic, sizeof(kMagic));  // trailer: detects truncation
 
   const std::string tmp = path + ".tmp";
@@ -807,6 +812,15 @@ absl::Status SlamSystemImpl::Restore(system_io::BinaryReader* r, uint32_t versio
         p.inlier_frames = r->Pod<int32_t>();
         p.no_park_before = r->Pod<int64_t>();
       }
+    }
+  }
+  if (version >= 4) {
+    const bool has_objects = r->Pod<uint8_t>() != 0;
+    if (r->ok() && has_objects != (objects_ != nullptr)) {
+      return absl::DataLossError("state file: object state does not match the configuration");
+    }
+    if (r->ok() && has_objects) {
+      if (absl::Status s = objects_->Read(r); !s.ok()) return s;
     }
   }
   char trailer[8];

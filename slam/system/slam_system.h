@@ -8,7 +8,10 @@
 //     - bad input (sizes, types, non-increasing timestamps) -> InvalidArgument,
 //       and the session is left exactly as it was;
 //     - "tracking lost" is r->state, not an error.
-//   sys->Save(path) / SlamSystem::Load(path) round-trip the whole state.
+//   sys->Save(path) / SlamSystem::Load(path) round-trip the whole state,
+//     object stage included (state format 4): a resumed session continues
+//     bit for bit like an uninterrupted one. Files of formats 1-3 still load
+//     (their objects restart); corrupt files give DataLoss.
 #pragma once
 
 #include <memory>
@@ -59,8 +62,8 @@ class SlamSystem {
 
   virtual absl::StatusOr<FrameResult> Process(const StereoFrame& frame) = 0;
   virtual MapSnapshot Snapshot() const = 0;
-  // Writes the whole state (config, map, trackers, last timestamps) atomically
-  // (temp file + rename).
+  // Writes the whole state (config, map, camera tracker, mapper, parked
+  // instances, object stage, last timestamps) atomically (temp file + rename).
   virtual absl::Status Save(const std::string& path) const = 0;
   virtual const SessionConfig& config() const = 0;
   virtual int64_t frames_processed() const = 0;

@@ -221,11 +221,10 @@ TEST_F(E2E, RestartAndResumeFromTheStateDirectoryLosesNothing) {
   ASSERT_TRUE(client->CloseStream().ok());
   std::vector<pb::FrameUpdate> all = c.Sorted();
   for (const auto& u : c2.Sorted()) all.push_back(u);
-  // Camera poses continue exactly across the restart. Objects are not
-  // compared: SlamSystem::Save/Load does not (yet) persist the engine's
-  // ObjectStage, so object tracks restart after a resume (engine gap,
-  // reported; the camera state, map and counters round-trip).
-  ExpectSamePoses(all, *driving_alone_, /*compare_objects=*/false);
+  // Camera poses and objects continue exactly across the restart:
+  // SlamSystem::Save/Load persists the camera state, the map and the object
+  // stage (state format 4).
+  ExpectSamePoses(all, *driving_alone_, /*compare_objects=*/true);
   std::filesystem::remove_all(state);
 }
 

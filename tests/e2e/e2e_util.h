@@ -228,8 +228,21 @@ inline void ExpectSamePoses(const std::vector<pb::FrameUpdate>& updates,
                 kPoseTolerance)
         << "frame " << i;
     if (compare_objects) {
-      EXPECT_EQ(updates[i].objects_size(), static_cast<int>(expected[i].objects.size()))
+      ASSERT_EQ(updates[i].objects_size(), static_cast<int>(expected[i].objects.size()))
           << "frame " << i;
+      for (int k = 0; k < updates[i].objects_size(); ++k) {
+        const pb::ObjectUpdate& o = updates[i].objects(k);
+        const ObjectResult& e = expected[i].objects[k];
+        EXPECT_EQ(o.id(), e.id) << "frame " << i;
+        EXPECT_EQ(o.class_id(), e.class_id) << "frame " << i;
+        EXPECT_EQ(o.instance_id(), e.instance_id) << "frame " << i;
+        EXPECT_EQ(o.num_points(), e.num_points) << "frame " << i;
+        const Eigen::Vector3d ot = e.world_from_object.translation();
+        EXPECT_NEAR(o.world_from_object().translation().x(), ot.x(), kPoseTolerance) << i;
+        EXPECT_NEAR(o.world_from_object().translation().y(), ot.y(), kPoseTolerance) << i;
+        EXPECT_NEAR(o.world_from_object().translation().z(), ot.z(), kPoseTolerance) << i;
+        EXPECT_NEAR(o.speed_mps(), e.speed_mps, kPoseTolerance) << "frame " << i;
+      }
     }
   }
 }

@@ -99,19 +99,44 @@ inline bool SameObjects(const FrameResult& a, const FrameResult& b) {
   for (size_t k = 0; k < a.objects.size(); ++k) {
     const ObjectResult& x = a.objects[k];
     const ObjectResult& y = b.objects[k];
-    if (x.id != y.id || x.state != y.state || !SamePose(x.world_from_object, y.world_from_object) ||
-        std::memcmp(x.twist_in_world.data(), y.twist_in_world.data(), 6 * sizeof(double)) != 0) {
+    if (x.id != y.id || x.class_id != y.class_id || x.instance_id != y.instance_id ||
+        x.state != y.state || x.stationary != y.stationary || x.joint != y.joint ||
+        x.num_points != y.num_points || !SamePose(x.world_from_object, y.world_from_object) ||
+        std::memcmp(x.twist_in_world.data(), y.twist_in_world.data(), 6 * sizeof(double)) != 0 ||
+        std::memcmp(x.twist_in_joint.data(), y.twist_in_joint.data(), 6 * sizeof(double)) != 0 ||
+        std::memcmp(&x.speed_mps, &y.speed_mps, sizeof(double)) != 0) {
       return false;
     }
   }
   return true;
 }
 
+inline bool SameClusterEvents(const FrameResult& a, const FrameResult& b) {
+  if (a.cluster_events.size() != b.cluster_events.size()) return false;
+  for (size_t k = 0; k < a.cluster_events.size(); ++k) {
+    const ClusterEvent& x = a.cluster_events[k];
+    const ClusterEvent& y = b.cluster_events[k];
+    if (x.type != y.type || x.cluster_id != y.cluster_id || x.class_id != y.class_id ||
+        x.instance_id != y.instance_id || x.is_dynamic != y.is_dynamic ||
+        x.plane.has_value() != y.plane.has_value() ||
+        (x.plane && std::memcmp(x.plane->data(), y.plane->data(), 4 * sizeof(double)) != 0)) {
+      return false;
+    }
+  }
+  return true;
+}
+
+// Moving and parked cars (the follow_braking scene), shared by the object tests.
+const Clip& CarsClip() {
+  static const Clip* clip = new Clip(MakeClip("follow_braking", 24, 0.5));
+  return *clip;
+}
+
 TEST(SlamSystem, SynchronousModeIsDeterministicWithObjectsAndDynamicBa) {
   // Moving and parked cars, the objects' dynamic BA (on by default) and the
   // parked-instance logic (switched on): two sessions fed the same frames, interleaved
   // (so their heaps differ), agree to the last bit, camera and objects.
-  static const Clip* clip = new Clip(MakeClip("follow_braking", 24, 0.5));
+  const Clip* clip = &CarsClip();
   SessionConfig config = clip->config;
   ASSERT_GT(config.options.object_ba_window_frames, 0);  // on by default
   config.options.parked_objects_static = true;
@@ -129,6 +154,7 @@ TEST(SlamSystem, SynchronousModeIsDeterministicWithObjectsAndDynamicBa) {
     EXPECT_TRUE(SamePose(ra->world_from_camera, rb->world_from_camera)) << "frame " << k;
     EXPECT_EQ(ra->num_map_points, rb->num_map_points) << "frame " << k;
     EXPECT_TRUE(SameObjects(*ra, *rb)) << "frame " << k;
+    EXPECT_TRUE(SameClusterEvents(*ra, *rb)) << "frame " << k;
     object_rows += static_cast<int>(ra->objects.size());
     for (const StageTiming& t : ra->timings) ba_frames += t.stage == "objects_ba";
   }
@@ -160,9 +186,7 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   std::remove(path.c_str());
 }
 
-// The objects are not persisted (they restart after a resume), so the resume
-// is bit-exact only when the camera does not depend on them: without the
-// parked-instance logic (the default). With it, see the next test.
+// Camera only (parked-instance logic off); objects: SaveLoadResumesObjectsExactly.
 TEST(SlamSystem, SaveLoadResumesWithIdenticalResults) {
   const Clip& clip = SmallClip();
   const size_t split = 13;
@@ -197,9 +221,8 @@ TEST(SlamSystem, SaveLoadResumesWithIdenticalResults) {
 
 TEST(SlamSystem, SaveLoadWithParkedObjectsKeepsTracking) {
   // static_street is lined with parked cars: with parked_objects_static their
-  // points join the static pipeline. The parked set is saved, the objects
-  // restart after Load, so the resumed run is close to (not bit-identical
-  // with) the uninterrupted one.
+  // points join the static pipeline. The parked set and the objects are
+  // saved, so the resumed run is bit-identical with the uninterrupted one.
   const Clip& clip = SmallClip();
   const size_t split = 15;
   SessionConfig config = clip.config;
@@ -219,6 +242,8 @@ TEST(SlamSystem, SaveLoadWithParkedObjectsKeepsTracking) {
     auto r = (*resumed)->Process(clip.frames[k]);
     ASSERT_TRUE(r.ok());
     EXPECT_EQ(r->state, TrackingState::kOk) << k;
+    EXPECT_TRUE(SamePose(r->world_from_camera, expected[k].world_from_camera)) << "frame " << k;
+    EXPECT_TRUE(SameObjects(*r, expected[k])) << "frame " << k;
     EXPECT_LT(
         (r->world_from_camera.translation() - expected[k].world_from_camera.translation()).norm(),
         0.05)
@@ -229,6 +254,163 @@ TEST(SlamSystem, SaveLoadWithParkedObjectsKeepsTracking) {
   ASSERT_TRUE(m.ok());
   EXPECT_LE(m->ate_rmse, 2 * kMaxStaticStreetAte);
   std::remove(path.c_str());
+}
+
+// The object stage is persisted (state format 4): a session saved after N
+// frames and loaded into a new system continues exactly like the original,
+// camera and objects (ids, states, poses, twists, stationarity, cluster and
+// plane events), with the objects' BA and the parked-instance logic on.
+TEST(SlamSystem, SaveLoadResumesObjectsExactly) {
+  const Clip& clip = CarsClip();
+  const size_t split = 12;
+  SessionConfig config = clip.config;
+  config.options.parked_objects_static = true;
+  auto first = SlamSystem::Create(config);
+  ASSERT_TRUE(first.ok());
+  int objects_before = 0;
+  for (size_t k = 0; k < split; ++k) {
+    auto r = (*first)->Process(clip.frames[k]);
+    ASSERT_TRUE(r.ok());
+    objects_before += static_cast<int>(r->objects.size());
+  }
+  ASSERT_GT(objects_before, 5);  // objects are tracked when the state is saved
+  const std::string path = TempPath("slam_state_objects");
+  ASSERT_TRUE((*first)->Save(path).ok());
+  auto resumed = SlamSystem::Load(path);
+  ASSERT_TRUE(resumed.ok()) << resumed.status();
+  // Saving the loaded system gives the same bytes (nothing is lost or added).
+  const std::string path2 = TempPath("slam_state_objects_again");
+  ASSERT_TRUE((*resumed)->Save(path2).ok());
+  {
+    std::ifstream a(path, std::ios::binary), b(path2, std::ios::binary);
+    const std::string da((std::istreambuf_iterator<char>(a)), std::istreambuf_iterator<char>());
+    const std::string db((std::istreambuf_iterator<char>(b)), std::istreambuf_iterator<char>());
+    size_t first_diff = 0, num_diff = 0;
+    for (size_t i = 0; i < std::min(da.size(), db.size()); ++i) {
+      if (da[i] != db[i] && num_diff++ == 0) first_diff = i;
+    }
+    EXPECT_TRUE(da == db) << da.size() << " vs " << db.size() << " bytes, " << num_diff
+                          << " differ from offset " << first_diff;
+  }
+  int rows = 0, moving = 0, stationary = 0;
+  for (size_t k = split; k < clip.frames.size(); ++k) {
+    auto ra = (*first)->Process(clip.frames[k]);
+    auto rb = (*resumed)->Process(clip.frames[k]);
+    ASSERT_TRUE(ra.ok() && rb.ok());
+    EXPECT_EQ(ra->state, rb->state) << "frame " << k;
+    EXPECT_TRUE(SamePose(ra->world_from_camera, rb->world_from_camera)) << "frame " << k;
+    EXPECT_EQ(ra->num_map_points, rb->num_map_points) << "frame " << k;
+    EXPECT_TRUE(SameObjects(*ra, *rb)) << "frame " << k;
+    EXPECT_TRUE(SameClusterEvents(*ra, *rb)) << "frame " << k;
+    for (const ObjectResult& o : ra->objects) {
+      ++rows;
+      moving += o.speed_mps > 2.0;
+      stationary += o.stationary;
+    }
+  }
+  // The resumed part does exercise moving and parked objects.
+  EXPECT_GT(rows, 10);
+  EXPECT_GT(moving, 0);
+  EXPECT_GT(stationary, 0);
+  std::remove(path.c_str());
+  std::remove(path2.c_str());
+}
+
+// Every truncation of a state file with objects, and every version newer than
+// the engine's, is a DataLoss status (never a crash or a silent success).
+TEST(SlamSystem, LoadRejectsTruncatedObjectState) {
+  const Clip& clip = CarsClip();
+  SessionConfig config = clip.config;
+  config.options.parked_objects_static = true;
+  auto sys = SlamSystem::Create(config);
+  ASSERT_TRUE(sys.ok());
+  for (int k = 0; k < 8; ++k) ASSERT_TRUE((*sys)->Process(clip.frames[k]).ok());
+  const std::string path = TempPath("state_objects_full");
+  ASSERT_TRUE((*sys)->Save(path).ok());
+  std::ifstream in(path, std::ios::binary);
+  const std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ASSERT_GT(data.size(), 1000u);
+  const std::string cut = TempPath("state_objects_cut");
+  auto write = [&](const std::string& bytes) {
+    std::ofstream out(cut, std::ios::binary | std::ios::trunc);
+    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  };
+  // Cuts all over the file, and densely in its tail (the object state).
+  std::vector<size_t> sizes;
+  for (int k = 1; k < 40; ++k) sizes.push_back(data.size() * k / 40);
+  for (size_t k = 1; k <= 600 && k < data.size(); k += 7) sizes.push_back(data.size() - k);
+  for (size_t n : sizes) {
+    write(data.substr(0, n));
+    EXPECT_EQ(SlamSystem::Load(cut).status().code(), absl::StatusCode::kDataLoss) << n;
+  }
+  // A trailing extra byte.
+  write(data + "x");
+  EXPECT_EQ(SlamSystem::Load(cut).status().code(), absl::StatusCode::kDataLoss);
+  // A future version.
+  std::string future = data;
+  const uint32_t v = 99;
+  std::memcpy(&future[8], &v, sizeof(v));
+  write(future);
+  EXPECT_EQ(SlamSystem::Load(cut).status().code(), absl::StatusCode::kDataLoss);
+  // Byte flips in the tail never crash (a flipped double may still load).
+  for (size_t k = 9; k <= 2000 && k < data.size(); k += 13) {
+    std::string flipped = data;
+    flipped[data.size() - k] = static_cast<char>(flipped[data.size() - k] ^ 0xA5);
+    write(flipped);
+    const auto r = SlamSystem::Load(cut);
+    EXPECT_TRUE(r.ok() || r.status().code() == absl::StatusCode::kDataLoss) << r.status();
+  }
+  // The intact file loads.
+  write(data);
+  EXPECT_TRUE(SlamSystem::Load(cut).ok());
+  std::remove(cut.c_str());
+  std::remove(path.c_str());
+}
+
+// A format-3 file (written before the objects were saved) still loads. Without
+// the object stage a format-4 file is a format-3 file plus one flag byte
+// before the trailer, so one is made from the other.
+TEST(SlamSystem, LoadsFormatVersion3) {
+  const Clip& clip = SmallClip();
+  SessionConfig config = clip.config;
+  config.options.track_objects = false;
+  auto sys = SlamSystem::Create(config);
+  ASSERT_TRUE(sys.ok());
+  for (int k = 0; k < 6; ++k) ASSERT_TRUE((*sys)->Process(clip.frames[k]).ok());
+  const std::string path = TempPath("state_v4");
+  ASSERT_TRUE((*sys)->Save(path).ok());
+  std::ifstream in(path, std::ios::binary);
+  std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  uint32_t version = 0;
+  std::memcpy(&version, &data[8], sizeof(version));
+  ASSERT_EQ(version, 4u);
+  ASSERT_EQ(data[data.size() - 9], '\0');  // "no object stage"
+  std::string v3 = data.substr(0, data.size() - 9) + data.substr(data.size() - 8);
+  version = 3;
+  std::memcpy(&v3[8], &version, sizeof(version));
+  const std::string path3 = TempPath("state_v3");
+  {
+    std::ofstream out(path3, std::ios::binary);
+    out.write(v3.data(), static_cast<std::streamsize>(v3.size()));
+  }
+  auto loaded = SlamSystem::Load(path3);
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  for (size_t k = 6; k < 10; ++k) {
+    auto a = (*sys)->Process(clip.frames[k]);
+    auto b = (*loaded)->Process(clip.frames[k]);
+    ASSERT_TRUE(a.ok() && b.ok());
+    EXPECT_TRUE(SamePose(a->world_from_camera, b->world_from_camera)) << "frame " << k;
+  }
+  // The same bytes declared as format 4 lack the flag: rejected.
+  version = 4;
+  std::memcpy(&v3[8], &version, sizeof(version));
+  {
+    std::ofstream out(path3, std::ios::binary | std::ios::trunc);
+    out.write(v3.data(), static_cast<std::streamsize>(v3.size()));
+  }
+  EXPECT_EQ(SlamSystem::Load(path3).status().code(), absl::StatusCode::kDataLoss);
+  std::remove(path.c_str());
+  std::remove(path3.c_str());
 }
 
 TEST(SlamSystem, LoadRejectsMissingAndCorruptFiles) {
