@@ -41,7 +41,8 @@ class SE3 {
   SE3(const Matrix3& R, const Vector3& t) : so3_(R), t_(t) {}
   // From a 4x4 homogeneous matrix or a 3x4 [R|t].
   static SE3 FromMatrix(const Matrix4& m) {
-    return SE3(Matrix3(m.template topLeftCorner<3, 3>()), Vector3(m.template topRightCorner<3, 1>()));
+    return SE3(Matrix3(m.template topLeftCorner<3, 3>()),
+               Vector3(m.template topRightCorner<3, 1>()));
   }
   static SE3 FromMatrix3x4(const Matrix34& m) {
     return SE3(Matrix3(m.template leftCols<3>()), Vector3(m.col(3)));
@@ -49,6 +50,13 @@ class SE3 {
   // From / to a 7-scalar Ceres parameter block.
   static SE3 FromParams(const T* p) {
     return SE3(Quaternion(p[3], p[0], p[1], p[2]), Vector3(p[4], p[5], p[6]));
+  }
+  // FromParams without renormalising the quaternion (SO3::FromUnitQuaternionExact):
+  // FromParamsExact(p).ToParams(q) gives q == p bit for bit. For parameters
+  // that ToParams wrote; the quaternion must already be unit.
+  static SE3 FromParamsExact(const T* p) {
+    return SE3(SO3<T>::FromUnitQuaternionExact(Quaternion(p[3], p[0], p[1], p[2])),
+               Vector3(p[4], p[5], p[6]));
   }
   void ToParams(T* p) const {
     const Quaternion& q = so3_.unit_quaternion();
@@ -96,9 +104,7 @@ class SE3 {
     const SO3<T> r_inv = so3_.Inverse();
     return SE3(r_inv, -(r_inv * t_));
   }
-  SE3 operator*(const SE3& other) const {
-    return SE3(so3_ * other.so3_, so3_ * other.t_ + t_);
-  }
+  SE3 operator*(const SE3& other) const { return SE3(so3_ * other.so3_, so3_ * other.t_ + t_); }
   Vector3 operator*(const Vector3& p) const { return so3_ * p + t_; }
 
   // Ad(T) = [[R, [t]x R], [0, R]] for (v, ω) ordering.
@@ -183,10 +189,15 @@ class SE3 {
     if (theta_sq < T(SmallAngle<T>::kJacobianThetaSq)) {
       // Series to θ⁸: the closed forms below lose ~ε/θ⁴ relative accuracy.
       const T t2 = theta_sq;
-      c1 = T(1.0 / 6.0) - t2 * (T(1.0 / 120.0) - t2 * (T(1.0 / 5040.0) - t2 * (T(1.0 / 362880.0) - t2 / T(39916800.0))));
-      c2 = T(1.0 / 24.0) - t2 * (T(1.0 / 720.0) - t2 * (T(1.0 / 40320.0) - t2 * (T(1.0 / 3628800.0) - t2 / T(479001600.0))));
+      c1 = T(1.0 / 6.0) -
+           t2 * (T(1.0 / 120.0) -
+                 t2 * (T(1.0 / 5040.0) - t2 * (T(1.0 / 362880.0) - t2 / T(39916800.0))));
+      c2 = T(1.0 / 24.0) -
+           t2 * (T(1.0 / 720.0) -
+                 t2 * (T(1.0 / 40320.0) - t2 * (T(1.0 / 3628800.0) - t2 / T(479001600.0))));
       c3 = T(1.0 / 120.0) -
-           t2 * (T(2.0 / 5040.0) - t2 * (T(3.0 / 362880.0) - t2 * (T(4.0 / 39916800.0) - t2 * T(5.0 / 6227020800.0))));
+           t2 * (T(2.0 / 5040.0) - t2 * (T(3.0 / 362880.0) -
+                                         t2 * (T(4.0 / 39916800.0) - t2 * T(5.0 / 6227020800.0))));
     } else {
       const T theta = sqrt(theta_sq);
       const T s = sin(theta);

@@ -8,10 +8,9 @@
 //  - Hat(a) is the skew-symmetric matrix [a]_x with Hat(a) b = a × b.
 #pragma once
 
-#include <cmath>
-
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <cmath>
 
 namespace twist::geometry {
 
@@ -44,6 +43,16 @@ class SO3 {
 
   static SO3 Identity() { return SO3(); }
 
+  // Adopts a quaternion that is already unit to round-off as it is, without
+  // renormalising: a rotation written out with unit_quaternion() comes back
+  // bit for bit (normalising again can change the last bits). The caller
+  // guarantees the norm (e.g. checks it when reading a file).
+  static SO3 FromUnitQuaternionExact(const Quaternion& q) {
+    SO3 r;
+    r.q_ = q;
+    return r;
+  }
+
   // Exponential map: rotation vector ω (angle θ = |ω| about ω/θ) -> rotation.
   static SO3 Exp(const Vector3& omega) {
     using std::cos;
@@ -63,8 +72,8 @@ class SO3 {
       real = cos(half);
     }
     SO3 out;
-    out.q_ = Quaternion(real, imag_factor * omega.x(), imag_factor * omega.y(),
-                        imag_factor * omega.z());
+    out.q_ =
+        Quaternion(real, imag_factor * omega.x(), imag_factor * omega.y(), imag_factor * omega.z());
     return out;
   }
 
@@ -125,8 +134,10 @@ class SO3 {
     T a, b;  // J_l = I + a W + b W²
     if (theta_sq < T(SmallAngle<T>::kJacobianThetaSq)) {
       const T t2 = theta_sq;
-      a = T(1.0 / 2.0) - t2 * (T(1.0 / 24.0) - t2 * (T(1.0 / 720.0) - t2 * (T(1.0 / 40320.0) - t2 / T(3628800.0))));
-      b = T(1.0 / 6.0) - t2 * (T(1.0 / 120.0) - t2 * (T(1.0 / 5040.0) - t2 * (T(1.0 / 362880.0) - t2 / T(39916800.0))));
+      a = T(1.0 / 2.0) - t2 * (T(1.0 / 24.0) -
+                               t2 * (T(1.0 / 720.0) - t2 * (T(1.0 / 40320.0) - t2 / T(3628800.0))));
+      b = T(1.0 / 6.0) - t2 * (T(1.0 / 120.0) - t2 * (T(1.0 / 5040.0) - t2 * (T(1.0 / 362880.0) -
+                                                                              t2 / T(39916800.0))));
     } else {
       const T theta = sqrt(theta_sq);
       a = (T(1.0) - cos(theta)) / theta_sq;
@@ -146,7 +157,9 @@ class SO3 {
     T c;  // J_l^{-1} = I - W/2 + c W²
     if (theta_sq < T(SmallAngle<T>::kJacobianThetaSq)) {
       const T t2 = theta_sq;
-      c = T(1.0 / 12.0) + t2 * (T(1.0 / 720.0) + t2 * (T(1.0 / 30240.0) + t2 * (T(1.0 / 1209600.0) + t2 / T(47900160.0))));
+      c = T(1.0 / 12.0) +
+          t2 * (T(1.0 / 720.0) +
+                t2 * (T(1.0 / 30240.0) + t2 * (T(1.0 / 1209600.0) + t2 / T(47900160.0))));
     } else {
       const T theta = sqrt(theta_sq);
       // (1 + cos θ) / (2 θ sin θ) written as cot(θ/2) / (2θ): finite at θ = π.
@@ -155,9 +168,7 @@ class SO3 {
     }
     return Matrix3::Identity() - T(0.5) * W + c * W * W;
   }
-  static Matrix3 RightJacobianInverse(const Vector3& omega) {
-    return LeftJacobianInverse(-omega);
-  }
+  static Matrix3 RightJacobianInverse(const Vector3& omega) { return LeftJacobianInverse(-omega); }
 
   // Geodesic interpolation: this · Exp(s · Log(this⁻¹ · other)), s ∈ [0, 1].
   SO3 Interpolate(const SO3& other, const T& s) const {

@@ -4,38 +4,6 @@
 
 namespace twist::system_io {
 
-namespace {
-bool SameParams(const geometry::SE3d& T, const double p[7]) {
-  double q[7];
-  T.ToParams(q);
-  return std::memcmp(q, p, sizeof(q)) == 0;
-}
-}  // namespace
-
-geometry::SE3d PoseFromParamsExact(const double p[7]) {
-  const geometry::SE3d plain = geometry::SE3d::FromParams(p);
-  if (SameParams(plain, p)) return plain;
-  double c[7];
-  std::memcpy(c, p, sizeof(c));
-  for (int k = 1; k <= 16; ++k) {
-    for (int sign = -1; sign <= 1; sign += 2) {
-      const double s = 1.0 + sign * k * std::ldexp(1.0, -53);
-      for (int i = 0; i < 4; ++i) c[i] = p[i] * s;
-      const geometry::SE3d T = geometry::SE3d::FromParams(c);
-      if (SameParams(T, p)) return T;
-    }
-  }
-  for (int i = 0; i < 4; ++i) {
-    for (int sign = -1; sign <= 1; sign += 2) {
-      std::memcpy(c, p, sizeof(c));
-      c[i] = std::nextafter(p[i], sign * 10.0);
-      const geometry::SE3d T = geometry::SE3d::FromParams(c);
-      if (SameParams(T, p)) return T;
-    }
-  }
-  return plain;
-}
-
 void BinaryWriter::Mat(const cv::Mat& m) {
   const cv::Mat c = m.isContinuous() ? m : m.clone();
   Pod<int32_t>(c.rows);
@@ -114,7 +82,22 @@ geometry::SE3d BinaryReader::Pose() {
   double p[7];
   for (double& v : p) v = Pod<double>();
   if (!ok_) return geometry::SE3d();
-  return PoseFromParamsExact(p);
+  // Written by ToParams: finite, with a unit quaternion; anything else is a
+  // corrupt file (normalising garbage would hide it).
+  double q_norm_sq = 0.0;
+  for (int i = 0; i < 7; ++i) {
+    if (!std::isfinite(p[i])) {
+      Fail();
+      return geometry::SE3d();
+    }
+    if (i < 4) q_norm_sq += p[i] * p[i];
+  }
+  if (std::abs(q_norm_sq - 1.0) > 1e-6) {
+    Fail();
+    return geometry::SE3d();
+  }
+  // Exact: a resumed session continues bit for bit.
+  return geometry::SE3d::FromParamsExact(p);
 }
 
 }  // namespace twist::system_io

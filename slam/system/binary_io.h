@@ -15,14 +15,6 @@
 
 namespace twist::system_io {
 
-// SE3d::FromParams normalises the quaternion, and about 6% of the unit
-// quaternions the engine computes (products normalised once) are not fixed
-// points of Eigen's normalisation: their last bits change. To restore the
-// exact bits written by ToParams, this tries the stored quaternion and then
-// nearby preimages (scaled by 1 ± k·2⁻⁵³, or one component moved by one ulp)
-// until FromParams(q').ToParams() gives back p; falls back to FromParams(p).
-geometry::SE3d PoseFromParamsExact(const double p[7]);
-
 class BinaryWriter {
  public:
   template <typename T>

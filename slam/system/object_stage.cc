@@ -336,27 +336,6 @@ cv::Rect2d ReadRect(BinaryReader* r) {
   return b;
 }
 
-// A pose whose parameters are not finite or whose quaternion is far from
-// unit length marks the reader failed (SE3 would normalise garbage).
-SE3d ReadPose(BinaryReader* r) {
-  double p[7];
-  for (double& v : p) v = r->Pod<double>();
-  if (!r->ok()) return SE3d();
-  double qn = 0.0;
-  for (int i = 0; i < 7; ++i) {
-    if (!std::isfinite(p[i])) {
-      r->Fail();
-      return SE3d();
-    }
-    if (i < 4) qn += p[i] * p[i];
-  }
-  if (std::abs(qn - 1.0) > 1e-6) {
-    r->Fail();
-    return SE3d();
-  }
-  return system_io::PoseFromParamsExact(p);
-}
-
 void WriteJoint(const joints::Joint& j, BinaryWriter* w) {
   w->Pod<int32_t>(static_cast<int32_t>(j.type()));
   w->Pod(j.pitch());
@@ -365,7 +344,7 @@ void WriteJoint(const joints::Joint& j, BinaryWriter* w) {
 joints::Joint ReadJoint(BinaryReader* r) {
   const int32_t type = r->Pod<int32_t>();
   const double pitch = r->Pod<double>();
-  const SE3d pose = ReadPose(r);
+  const SE3d pose = r->Pose();
   if (!r->ok() || type < 0 || type >= joints::kNumJointTypes || !std::isfinite(pitch)) {
     r->Fail();
     return joints::Joint();
@@ -448,7 +427,7 @@ objects::TrackedObject ReadTrackedObject(BinaryReader* r) {
   o.instance_id = r->Pod<int32_t>();
   o.state = ReadEnum<ObjectState>(r, static_cast<int32_t>(ObjectState::kLost));
   o.joint = ReadJoint(r);
-  o.world_from_object = ReadPose(r);
+  o.world_from_object = r->Pose();
   o.twist_step = ReadVec<geometry::Vector6d>(r);
   o.step_seconds = r->Pod<double>();
   const uint64_t np = r->Count(77);  // the smallest point (empty images)
@@ -472,7 +451,7 @@ objects::TrackedObject ReadTrackedObject(BinaryReader* r) {
     objects::ObjectPoseSample s;
     s.frame_index = r->Pod<int64_t>();
     s.timestamp_ns = r->Pod<int64_t>();
-    s.world_from_object = ReadPose(r);
+    s.world_from_object = r->Pose();
     s.twist_step = ReadVec<geometry::Vector6d>(r);
     s.observations = ReadObservations(r);
     o.history.push_back(std::move(s));
@@ -716,7 +695,7 @@ absl::Status ObjectStage::Read(BinaryReader* r) {
   for (uint64_t k = 0; k < nw && r->ok(); ++k) {
     const int64_t index = r->Pod<int64_t>();
     const int64_t ts_ns = r->Pod<int64_t>();
-    window.emplace_back(index, ts_ns, ReadPose(r));
+    window.emplace_back(index, ts_ns, r->Pose());
   }
   if (!r->ok()) return corrupt("axis joints or BA window");
 
