@@ -26,6 +26,7 @@
 
 #include "client/lib/frame_encoding.h"
 #include "client/lib/slam_client.h"
+#include "client/lib/slam_convert.h"
 #include "server/server.h"
 #include "slam/io/json_writer.h"
 #include "slam/io/sequence.h"
@@ -123,14 +124,7 @@ Data Load(int num_frames, double scale) {
 pb::CreateSessionRequest Request(const twist::SessionConfig& config) {
   pb::CreateSessionRequest r;
   r.set_name("bench");
-  auto* c = r.mutable_config()->mutable_calibration();
-  c->set_fx(config.camera.fx);
-  c->set_fy(config.camera.fy);
-  c->set_cx(config.camera.cx);
-  c->set_cy(config.camera.cy);
-  c->set_baseline(config.camera.baseline);
-  c->set_width(config.camera.width);
-  c->set_height(config.camera.height);
+  *r.mutable_config() = twist::client::SessionConfigToProto(config);
   r.mutable_config()->mutable_options()->set_mapping_mode(pb::MAPPING_MODE_SYNCHRONOUS);
   return r;  // default (Cityscapes) class table: same ids as the generator's
 }

@@ -13,6 +13,7 @@
 
 #include "client/lib/frame_encoding.h"
 #include "client/lib/slam_client.h"
+#include "client/lib/slam_convert.h"
 #include "server/server.h"
 #include "slam/io/sequence.h"
 #include "slam/sim/scenarios.h"
@@ -133,30 +134,8 @@ inline pb::CreateSessionRequest CreateRequest(const SessionConfig& config,
                                               const std::string& name = "e2e") {
   pb::CreateSessionRequest request;
   request.set_name(name);
-  pb::StereoCalibration* c = request.mutable_config()->mutable_calibration();
-  c->set_fx(config.camera.fx);
-  c->set_fy(config.camera.fy);
-  c->set_cx(config.camera.cx);
-  c->set_cy(config.camera.cy);
-  c->set_baseline(config.camera.baseline);
-  c->set_width(config.camera.width);
-  c->set_height(config.camera.height);
-  pb::ClassTable* table = request.mutable_config()->mutable_class_table();
-  for (const joints::ClassInfo& info : config.classes.classes()) {
-    pb::SemanticClass* sc = table->add_classes();
-    sc->set_id(info.id);
-    sc->set_name(info.name);
-    sc->set_is_dynamic(info.is_dynamic);
-    sc->set_fit_plane(info.fit_plane);
-    if (info.parent_id >= 0) {
-      pb::JointEdge* e = table->add_joints();
-      e->set_child_class_id(info.id);
-      e->set_parent_class_id(info.parent_id);
-      e->set_joint_type(static_cast<pb::JointType>(static_cast<int>(info.joint) + 1));
-      e->set_pitch(info.pitch);
-    }
-  }
-  request.mutable_config()->mutable_options()->set_num_features(config.options.num_features);
+  *request.mutable_config() = client::SessionConfigToProto(config);
+  // Streamed results are compared with synchronous embedded runs.
   request.mutable_config()->mutable_options()->set_mapping_mode(pb::MAPPING_MODE_SYNCHRONOUS);
   return request;
 }
