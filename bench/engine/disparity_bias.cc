@@ -28,6 +28,7 @@
 #include "slam/sim/scenarios.h"
 #include "slam/sim/writer.h"
 #include "slam/system/slam_system.h"
+#include "tests/slam/features/stereo_truth.h"
 
 using namespace twist;
 
@@ -151,23 +152,15 @@ int main(int argc, char** argv) {
   int slope_n[3] = {0, 0, 0};
   for (int f = 0; f < frames; ++f) {
     const sim::StereoRender r = sim::RenderScenarioFrame(renderer, *sc, f);
-    std::vector<cv::KeyPoint> kl, kr;
-    cv::Mat dl, dr;
-    std::vector<cv::Mat> ll, lr;
-    orb.Extract(r.left, cv::Mat(), &kl, &dl, &ll);
-    orb.Extract(r.right, cv::Mat(), &kr, &dr, &lr);
-    const auto st = features::MatchStereo(sc->camera, orb.pyramid(), kl, dl, kr, dr, ll, lr, smo);
-    for (size_t q = 0; q < kl.size(); ++q) {
-      if (st.depth[q] <= 0.f) continue;
-      const int l = kl[q].octave;
+    std::vector<cv::KeyPoint> kl;
+    for (const features::testing::StereoTruth& m :
+         features::testing::MatchAgainstTruth(r, sc->camera, orb, smo, &kl)) {
+      const int l = m.level;
       const double s = orb.pyramid().scale[l];
-      const int radius = static_cast<int>(std::ceil((smo.sad_half_window + 1) * s));
-      const auto truth =
-          sim::PlanarDisparity(r.depth, sc->camera.bf(), kl[q].pt.x, kl[q].pt.y, radius);
-      if (!truth) continue;
-      const double gt = truth->disparity, gx = truth->gx;
+      const double gt = m.truth.disparity, gx = m.truth.gx;
+      const int q = m.keypoint;
       ++matched[l];
-      const double e = (kl[q].pt.x - st.u_right[q]) - gt;
+      const double e = m.estimated - gt;
       if (std::abs(e) > 1.0 * s) {
         ++outliers[l];
         continue;

@@ -18,6 +18,7 @@
 #include "slam/sim/depth_truth.h"
 #include "slam/sim/renderer.h"
 #include "slam/sim/scenarios.h"
+#include "tests/slam/features/stereo_truth.h"
 
 namespace twist::features {
 namespace {
@@ -38,24 +39,12 @@ std::vector<LevelStats> Measure(SubpixelMethod method, int frames) {
   std::vector<LevelStats> stats(orb.options().num_levels);
   for (int f = 0; f < frames; ++f) {
     const sim::StereoRender r = sim::RenderScenarioFrame(renderer, *sc, f);
-    std::vector<cv::KeyPoint> kl, kr;
-    cv::Mat dl, dr;
-    std::vector<cv::Mat> ll, lr;
-    orb.Extract(r.left, cv::Mat(), &kl, &dl, &ll);
-    orb.Extract(r.right, cv::Mat(), &kr, &dr, &lr);
-    const StereoMatchResult st =
-        MatchStereo(sc->camera, orb.pyramid(), kl, dl, kr, dr, ll, lr, options);
-    for (size_t q = 0; q < kl.size(); ++q) {
-      if (st.depth[q] <= 0.f) continue;
-      const int level = kl[q].octave;
-      const double s = orb.pyramid().scale[level];
-      const int radius = static_cast<int>(std::ceil((options.sad_half_window + 1) * s));
-      const auto truth =
-          sim::PlanarDisparity(r.depth, sc->camera.bf(), kl[q].pt.x, kl[q].pt.y, radius);
-      if (!truth) continue;
-      const double e = (kl[q].pt.x - st.u_right[q]) - truth->disparity;
-      if (std::abs(e) > s) continue;  // wrong matches (repetitive texture)
-      stats[level].signed_error.push_back(e);
+    for (const testing::StereoTruth& m :
+         testing::MatchAgainstTruth(r, sc->camera, orb, options, nullptr)) {
+      const double e = m.estimated - m.truth.disparity;
+      // Wrong matches (repetitive texture).
+      if (std::abs(e) > orb.pyramid().scale[m.level]) continue;
+      stats[m.level].signed_error.push_back(e);
     }
   }
   return stats;
