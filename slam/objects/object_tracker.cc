@@ -100,6 +100,12 @@ bool DeepInsideDetection(const ObjectDetectionInput& det,
   return true;
 }
 
+// Velocity of the point p (world frame) under the world twist ξ = (v, ω)
+// (per unit of the twist's time): v + ω × p.
+Eigen::Vector3d PointVelocity(const Vector6d& twist, const Eigen::Vector3d& p) {
+  return twist.head<3>() + twist.tail<3>().cross(p);
+}
+
 double Median(std::vector<double> v) {
   if (v.empty()) return 0.0;
   std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
@@ -186,9 +192,7 @@ ObjectResult ObjectTracker::ToResult(const TrackedObject& o) {
   // refinement (the dynamic BA) made of its held poses.
   if (o.step_seconds > 0.0 && !o.stationary) r.twist_in_world = o.twist_step / o.step_seconds;
   r.twist_in_joint = o.joint.WorldToJoint(r.twist_in_world);
-  const Eigen::Vector3d v = r.twist_in_world.head<3>() +
-                            r.twist_in_world.tail<3>().cross(o.world_from_object.translation());
-  r.speed_mps = v.norm();
+  r.speed_mps = PointVelocity(r.twist_in_world, o.world_from_object.translation()).norm();
   r.joint = joints::JointTypeName(o.joint.type());
   r.num_points = static_cast<int>(o.points.size());
   r.stationary = o.stationary;
@@ -493,8 +497,8 @@ bool ObjectTracker::Track(const FrameContext& ctx,
         dof > 0 &&
         TwistSignificance(camera_, f.camera_from_world, o->world_from_object, *est, obs) >=
             ChiSquareQuantile(dof, options_.stationary_confidence);
-    const Eigen::Vector3d t = o->world_from_object.translation();
-    const double speed = (est->twist.head<3>() + est->twist.tail<3>().cross(t)).norm() / ctx.dt;
+    const double speed =
+        PointVelocity(est->twist, o->world_from_object.translation()).norm() / ctx.dt;
     if (o->stationary) {
       o->stationary = !(significant && speed >= options_.stationary_leave_speed_mps);
       o->insignificant_steps = o->stationary ? o->insignificant_steps + 1 : 0;

@@ -242,6 +242,15 @@ struct ParkedLabel {
   double inlier_share = 0.0;
   int inlier_frames = 0;
   int64_t no_park_before = 0;
+
+  // Back to "not parked", with the still-frame count and the camera-side
+  // statistics restarted.
+  void Unpark() {
+    still_frames = 0;
+    parked = false;
+    inlier_share = 0.0;
+    inlier_frames = 0;
+  }
 };
 constexpr double kStillSpeed = 0.3;   // m/s (about 1 km/h)
 constexpr double kMovingSpeed = 0.5;  // m/s
@@ -279,10 +288,7 @@ void UpdateParked(const std::vector<ObjectResult>& objects,
       if (!o.stationary && o.speed_mps > kMovingSpeed) {
         VLOG_IF(1, p.parked) << "frame " << frame << ": label " << o.class_id * 1000 + o.instance_id
                              << " moves (" << o.speed_mps << " m/s): no longer parked";
-        p.still_frames = 0;
-        p.parked = false;
-        p.inlier_share = 0.0;
-        p.inlier_frames = 0;
+        p.Unpark();
       } else if (still) {
         p.still_frames = std::min(p.still_frames + 1, 1000);
         if (p.still_frames >= kParkFrames && !p.parked && frame >= p.no_park_before) {
@@ -330,10 +336,7 @@ void CheckParkedAgainstTracking(const map::Frame& frame,
     if (p.inlier_frames >= 3 && share < kInlierDrop * p.inlier_share) {
       VLOG(1) << "frame " << frame_no << ": label " << label << " inlier share " << share
               << " (mean " << p.inlier_share << "): no longer parked";
-      p.parked = false;
-      p.still_frames = 0;
-      p.inlier_share = 0.0;
-      p.inlier_frames = 0;
+      p.Unpark();
       p.no_park_before = frame_no + kNoParkFrames;
       continue;
     }
