@@ -119,6 +119,8 @@ struct ObjectTracker::FrameContext {
   SE3d world_from_camera;
   double dt = 0.0;  // seconds since the previous frame (0 on the first)
   KeypointGrid grid;
+  // Stereo u_right of (cluster id, keypoint) as ObjectStereo measured it.
+  mutable std::unordered_map<int64_t, std::unordered_map<size_t, double>> stereo_cache;
   FrameContext(const ObjectFrameInput& f, double dt_s)
       : frame(f),
         world_from_camera(f.camera_from_world.Inverse()),
@@ -149,6 +151,31 @@ ObjectTracker::ObjectTracker(const geometry::StereoCamera& camera,
     : camera_(camera), options_(options) {
   CHECK(camera_.Validate().ok()) << camera_.Validate().message();
   CHECK(options_.Validate().ok()) << options_.Validate().message();
+}
+
+double ObjectTracker::ObjectStereo(const FrameContext& ctx,
+                                   const ObjectDetectionInput& det,
+                                   size_t k) const {
+  const FrameKeypoints& kps = ctx.frame.keypoints;
+  const double u_right = kps.u_right[k];
+  if (u_right < 0.0 || !options_.masked_stereo || ctx.frame.right.empty() || det.mask.empty())
+    return u_right;
+  auto& cache = ctx.stereo_cache[det.cluster_id];
+  if (auto it = cache.find(k); it != cache.end()) return it->second;
+  const double half = kps.stereo_support_px.empty() ? options_.masked_stereo_default_half_px
+                                                    : kps.stereo_support_px[k];
+  const std::optional<double> d = MaskedDisparity(ctx.frame.left,
+                                                  ctx.frame.right,
+                                                  det.mask,
+                                                  kps.uv[k],
+                                                  kps.uv[k].x() - u_right,
+                                                  half,
+                                                  options_.masked_stereo_options);
+  const double result = d && *d > 0.0                          ? kps.uv[k].x() - *d
+                        : options_.masked_stereo_keep_unmeasured ? u_right
+                                                                 : -1.0;
+  cache.emplace(k, result);
+  return result;
 }
 
 TrackedObject* ObjectTracker::mutable_object(int64_t id) {
@@ -236,8 +263,10 @@ void ObjectTracker::AddNewPoints(const FrameContext& ctx,
       }
     }
     if (close) continue;
-    const auto p_c = camera_.TriangulateStereo(
-        kps.uv[k].x(), kps.uv[k].y(), kps.u_right[k], options_.max_depth_m);
+    const double u_right = ObjectStereo(ctx, det, k);
+    if (u_right < 0.0) continue;
+    const auto p_c =
+        camera_.TriangulateStereo(kps.uv[k].x(), kps.uv[k].y(), u_right, options_.max_depth_m);
     if (!p_c) continue;
     if (!depths.empty() && std::abs(p_c->z() - median_depth) > options_.max_depth_spread_m)
       continue;
@@ -249,7 +278,7 @@ void ObjectTracker::AddNewPoints(const FrameContext& ctx,
     p.last_uv = kps.uv[k];
     p.seen_last_frame = true;
     p.num_observations = 1;
-    o->pending_observations.push_back({p.id, kps.uv[k], kps.u_right[k]});
+    o->pending_observations.push_back({p.id, kps.uv[k], u_right});
     o->points.push_back(std::move(p));
     taken.push_back(kps.uv[k]);
   }
@@ -260,13 +289,17 @@ bool ObjectTracker::Create(const FrameContext& ctx,
                            TrackedObject* o) {
   const FrameKeypoints& kps = ctx.frame.keypoints;
   std::vector<size_t> idx;
+  std::vector<double> u_rights;
   std::vector<Eigen::Vector3d> p_cam;
   for (size_t k = 0; k < kps.uv.size(); ++k) {
     if (kps.u_right[k] < 0.0 || !DeepInsideDetection(det, kps.uv[k], options_.mask_erosion_px))
       continue;
-    const auto p_c = camera_.TriangulateStereo(
-        kps.uv[k].x(), kps.uv[k].y(), kps.u_right[k], options_.max_depth_m);
+    const double u_right = ObjectStereo(ctx, det, k);
+    if (u_right < 0.0) continue;
+    const auto p_c =
+        camera_.TriangulateStereo(kps.uv[k].x(), kps.uv[k].y(), u_right, options_.max_depth_m);
     if (!p_c) continue;
+    u_rights.push_back(u_right);
     idx.push_back(k);
     p_cam.push_back(*p_c);
   }
@@ -310,7 +343,7 @@ bool ObjectTracker::Create(const FrameContext& ctx,
     p.last_uv = kps.uv[k];
     p.seen_last_frame = true;
     p.num_observations = 1;
-    o->pending_observations.push_back({p.id, kps.uv[k], kps.u_right[k]});
+    o->pending_observations.push_back({p.id, kps.uv[k], u_rights[kept[m]]});
     o->points.push_back(std::move(p));
   }
   o->cluster_id = det.cluster_id;
@@ -374,8 +407,9 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       return HammingDistance(desc, f.keypoints.descriptors.row(i)) <= options_.search.max_hamming;
     });
     if (kp < 0) return -1.0;
-    return f.keypoints.u_right[static_cast<size_t>(kp)] +
-           (uv.x() - f.keypoints.uv[static_cast<size_t>(kp)].x());
+    const double u_right = ObjectStereo(ctx, det, static_cast<size_t>(kp));
+    if (u_right < 0.0) return -1.0;
+    return u_right + (uv.x() - f.keypoints.uv[static_cast<size_t>(kp)].x());
   };
   for (size_t j = 0; j < flow_idx.size(); ++j) {
     const auto& q = (*flowed)[j];
@@ -443,7 +477,9 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       if (match[k] >= 0) {
         const size_t kp = static_cast<size_t>(match[k]);
         if (!InsideDetection(det, f.keypoints.uv[kp], 2.0)) continue;
-        add_obs(k, f.keypoints.uv[kp], f.keypoints.u_right[kp]);
+        add_obs(k,
+                f.keypoints.uv[kp],
+                ObjectStereo(ctx, det, kp));
         continue;
       }
       if (o->points[k].patch.empty()) continue;
@@ -589,7 +625,7 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
     TwistObservation t;
     t.point_in_object = pts[k];
     t.uv = f.keypoints.uv[kp];
-    t.u_right = f.keypoints.u_right[kp];
+    t.u_right = ObjectStereo(ctx, det, kp);
     obs.push_back(t);
     obs_point.push_back(k);
   }
@@ -638,6 +674,10 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
         "left image is " + std::to_string(frame.left.cols) + "x" + std::to_string(frame.left.rows) +
         ", camera is " + std::to_string(camera_.width) + "x" + std::to_string(camera_.height));
   }
+  if (!frame.right.empty() &&
+      (frame.right.type() != CV_8UC1 || frame.right.size() != frame.left.size())) {
+    return absl::InvalidArgumentError("the right image must be CV_8UC1 of the left image's size");
+  }
   if (!frame.flow.empty() &&
       (frame.flow.type() != CV_32FC2 || frame.flow.size() != frame.left.size())) {
     return absl::InvalidArgumentError("flow must be CV_32FC2 with the size of the left image");
@@ -648,6 +688,10 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
                                     kps.descriptors.type() != CV_8UC1))) {
     return absl::InvalidArgumentError(
         "keypoints need one u_right per keypoint and one CV_8UC1 descriptor row per keypoint");
+  }
+  if (!kps.stereo_support_px.empty() && kps.stereo_support_px.size() != kps.uv.size()) {
+    return absl::InvalidArgumentError(
+        "keypoints' stereo_support_px must be empty or have one entry per keypoint");
   }
   if (has_prev_ && frame.timestamp_ns <= prev_timestamp_ns_) {
     return absl::InvalidArgumentError("object tracker timestamps must increase");

@@ -38,6 +38,7 @@
 #include "slam/geometry/stereo_camera.h"
 #include "slam/joints/joint.h"
 #include "slam/objects/flow_association.h"
+#include "slam/objects/masked_stereo.h"
 #include "slam/objects/projection_search.h"
 #include "slam/objects/twist_estimator.h"
 
@@ -116,6 +117,7 @@ struct ObjectFrameInput {
   int64_t timestamp_ns = 0;
   geometry::SE3d camera_from_world;
   cv::Mat left;              // CV_8UC1
+  cv::Mat right;             // optional CV_8UC1 rectified right image (masked object stereo)
   cv::Mat flow;              // optional CV_32FC2 previous-left -> this-left
   FrameKeypoints keypoints;  // stereo keypoints of the left image (u_right < 0: mono)
   std::vector<ObjectDetectionInput> detections;
@@ -143,6 +145,22 @@ struct ObjectTrackerOptions {
   double disparity_sigma_px = 0.3;
   double min_point_spacing_px = 3.0;
   double mask_erosion_px = 2.0;   // new points at least this far inside the mask
+  // Object depths from the mask only (masked_stereo.h): when the frame
+  // carries the right image, every stereo depth the tracker uses for an
+  // object (creation, new points, stereo observations) is measured again on
+  // level 0 with the block restricted to the detection's mask, of the
+  // half-size of the matcher's block (FrameKeypoints::stereo_support_px, else
+  // masked_stereo_default_half_px). The engine's matcher blocks straddle the
+  // car and the background for most keypoints of a car 20-30 m away, which
+  // biases their disparity (docs/objects.md §11). A keypoint whose masked
+  // measurement fails is used as mono (no point created from it).
+  bool masked_stereo = true;
+  // When the masked measurement fails (too few mask pixels in the window,
+  // no texture, weak correlation): true keeps the matcher's depth, false
+  // uses the keypoint as mono.
+  bool masked_stereo_keep_unmeasured = true;
+  double masked_stereo_default_half_px = 5.5;
+  MaskedStereoOptions masked_stereo_options;
   double stereo_lookup_px = 1.5;  // flow position -> stereo keypoint
   int max_frames_lost = 10;       // re-identification window, then removed
   double reid_min_score = 0.3;
@@ -236,6 +254,9 @@ class ObjectTracker {
                     const std::vector<Eigen::Vector2d>& occupied);
   void RecordPose(const FrameContext& ctx, TrackedObject* object);
   joints::Joint EffectiveJoint(const joints::Joint& joint) const;
+  // u_right of keypoint k for the object of `det` (ObjectTrackerOptions::
+  // masked_stereo); < 0: no usable stereo depth.
+  double ObjectStereo(const FrameContext& ctx, const ObjectDetectionInput& det, size_t k) const;
 
   geometry::StereoCamera camera_;
   ObjectTrackerOptions options_;

@@ -20,6 +20,12 @@ struct FrameKeypoints {
   std::vector<Eigen::Vector2d> uv;
   std::vector<double> u_right;  // per keypoint, < 0 when no stereo match
   cv::Mat descriptors;          // one CV_8U row per keypoint (ORB: 32 bytes)
+  // Optional, per keypoint: half-size (level-0 pixels) of the image window
+  // its stereo depth was measured from, i.e. the matcher's block on the
+  // keypoint's pyramid level (StereoMatchOptions::sad_half_window + 0.5,
+  // times the level's scale); the object tracker re-measures object depths
+  // with a masked window of that size (masked_stereo.h). Empty: unknown.
+  std::vector<double> stereo_support_px;
 };
 
 struct ProjectionSearchOptions {

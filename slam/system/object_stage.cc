@@ -11,6 +11,7 @@
 #include <unordered_set>
 
 #include "slam/common/timer.h"
+#include "slam/features/stereo_matcher.h"
 #include "slam/objects/dynamic_ba.h"
 #include "slam/objects/joint_frames.h"
 #include "slam/objects/object_ba.h"
@@ -224,13 +225,20 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
   of.timestamp_ns = in.timestamp_ns;
   of.camera_from_world = in.camera_from_world;
   of.left = in.left;
+  of.right = in.right;
   of.flow = in.flow;
   of.keypoints.descriptors = f.descriptors;
   of.keypoints.uv.reserve(n);
   of.keypoints.u_right.reserve(n);
+  // The stereo matcher's block on each keypoint's pyramid level, in level-0
+  // pixels: the tracker trusts a depth only when the block lies on the object.
+  const double stereo_half = features::StereoMatchOptions().sad_half_window + 0.5;
+  of.keypoints.stereo_support_px.reserve(n);
   for (int i = 0; i < n; ++i) {
     of.keypoints.uv.emplace_back(f.keypoints[i].pt.x, f.keypoints[i].pt.y);
     of.keypoints.u_right.push_back(f.u_right[i]);
+    of.keypoints.stereo_support_px.push_back(
+        stereo_half * std::pow(config_.options.scale_factor, f.keypoints[i].octave));
   }
   for (size_t d = 0; d < dets.size(); ++d) {
     if (dets[d].label.instance_id == 0) continue;

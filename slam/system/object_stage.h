@@ -65,6 +65,7 @@ struct ObjectStageInput {
   int64_t frame_index = 0;
   int64_t timestamp_ns = 0;
   cv::Mat left;                                  // CV_8UC1
+  cv::Mat right;                                 // optional CV_8UC1 (object depths from the mask)
   cv::Mat panoptic;                              // CV_16UC1 / CV_32SC1, class * 1000 + instance
   cv::Mat flow;                                  // optional CV_32FC2, previous left -> this left
   const map::FrameFeatures* features = nullptr;  // the frame's stereo keypoints

@@ -582,6 +582,7 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
     oi.frame_index = input.index;
     oi.timestamp_ns = input.timestamp_ns;
     oi.left = ToGray(input.left);
+    oi.right = ToGray(input.right);
     oi.panoptic = input.panoptic;
     oi.flow = input.flow;
     oi.features = frame.features.get();
