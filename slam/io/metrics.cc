@@ -368,6 +368,14 @@ absl::StatusOr<ObjectEvaluation> EvaluateObjects(const std::vector<ObjectGtRow>&
   eval.all = aggregate([](const ObjectMetrics&) { return true; });
   eval.moving = aggregate([](const ObjectMetrics& m) { return m.moving; });
   eval.static_objects = aggregate([](const ObjectMetrics& m) { return !m.moving; });
+  std::set<std::pair<int, bool>> groups;  // (class, !moving): moving first
+  for (const ObjectMetrics& m : eval.objects) groups.insert({m.class_id, !m.moving});
+  for (const auto& [class_id, is_static] : groups) {
+    const bool moving = !is_static;
+    eval.by_class.push_back({class_id, moving, aggregate([&](const ObjectMetrics& m) {
+                               return m.class_id == class_id && m.moving == moving;
+                             })});
+  }
   return eval;
 }
 
@@ -440,14 +448,19 @@ std::string FormatObjectTable(const ObjectEvaluation& e) {
                   m.num_est_tracks);
     out += buf;
   }
-  for (const auto& [name, a] : {std::pair<const char*, const ObjectAggregate&>{"all", e.all},
-                                {"moving", e.moving},
-                                {"static", e.static_objects}}) {
+  std::vector<std::pair<std::string, const ObjectAggregate*>> rows = {
+      {"all", &e.all}, {"moving", &e.moving}, {"static", &e.static_objects}};
+  for (const ClassAggregate& c : e.by_class) {
+    rows.push_back(
+        {"class " + std::to_string(c.class_id) + (c.moving ? " moving" : " static"), &c.aggregate});
+  }
+  for (const auto& [name, ap] : rows) {
+    const ObjectAggregate& a = *ap;
     std::snprintf(buf,
                   sizeof(buf),
-                  "  %-6s n=%d tracked=%d coverage=%s viscov=%s ATE=%s m RPE_t=%s m/m "
+                  "  %-15s n=%d tracked=%d coverage=%s viscov=%s ATE=%s m RPE_t=%s m/m "
                   "RPE_R=%s deg/m speed_err=%s km/h\n",
-                  name,
+                  name.c_str(),
                   a.num_objects,
                   a.num_tracked,
                   Num(a.coverage, "%.3f").c_str(),
@@ -504,6 +517,16 @@ void WriteObjectsJson(const ObjectEvaluation& e, JsonWriter* w) {
   WriteAggregateJson(e.moving, w);
   w->Key("static");
   WriteAggregateJson(e.static_objects, w);
+  w->Key("by_class").BeginArray();
+  for (const ClassAggregate& c : e.by_class) {
+    w->BeginObject();
+    w->Key("class_id").Int(c.class_id);
+    w->Key("moving").Bool(c.moving);
+    w->Key("aggregate");
+    WriteAggregateJson(c.aggregate, w);
+    w->EndObject();
+  }
+  w->EndArray();
   w->Key("per_object").BeginArray();
   for (const ObjectMetrics& m : e.objects) {
     w->BeginObject();

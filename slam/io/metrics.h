@@ -124,9 +124,19 @@ struct ObjectAggregate {
   double speed_error_kmh = NAN;  // mean over all samples
 };
 
+// The aggregate of one class's moving or static objects (issue #5 states
+// its targets for moving and parked *cars*; pedestrians, also moving, are
+// reported apart).
+struct ClassAggregate {
+  int class_id = 0;
+  bool moving = false;
+  ObjectAggregate aggregate;
+};
+
 struct ObjectEvaluation {
   std::vector<ObjectMetrics> objects;  // one per GT object, by track id
   ObjectAggregate all, moving, static_objects;
+  std::vector<ClassAggregate> by_class;  // by class id, moving before static
   int num_est_tracks = 0;
   int num_unmatched_est_tracks = 0;  // false positives / unassociated
 };

@@ -312,6 +312,61 @@ TEST(ObjectMetrics, CoverageFragmentsStaticSplitAndVisibility) {
   EXPECT_THAT(w.str(), ::testing::HasSubstr("\"rpe_t_m_per_m\": null"));
 }
 
+TEST(ObjectMetrics, PerClassAggregatesSeparateCarsFromPedestrians) {
+  // A moving car tracked exactly, a moving pedestrian (class 24) whose estimate
+  // is 0.5 m/s too fast, and a parked car tracked exactly: "moving" pools the
+  // car and the pedestrian, the class rows keep them apart.
+  const int n = 11;
+  std::vector<ObjectGtRow> gt = MovingGt(1, n, 10.0, Eigen::Vector3d(0, 1, 15));
+  std::vector<ObjectGtRow> walker = MovingGt(2, n, 1.5, Eigen::Vector3d(3, 1, 12));
+  for (ObjectGtRow& r : walker) r.class_id = 24;
+  gt.insert(gt.end(), walker.begin(), walker.end());
+  for (const ObjectGtRow& r : MovingGt(3, n, 0.0, Eigen::Vector3d(-4, 1, 20))) gt.push_back(r);
+  const auto walker_est = MovingGt(2, n, 2.0, Eigen::Vector3d(3, 1, 12));
+  std::vector<ObjectTrackRow> est;
+  for (size_t k = 0; k < gt.size(); ++k) {
+    ObjectTrackRow r;
+    r.frame = gt[k].frame;
+    r.track_id = 100 + gt[k].track_id;
+    r.class_id = gt[k].class_id;
+    r.instance_id = gt[k].track_id;
+    r.world_from_object = gt[k].track_id == 2
+                              ? walker_est[static_cast<size_t>(gt[k].frame)].world_from_object
+                              : gt[k].world_from_object;
+    est.push_back(r);
+  }
+  auto e = EvaluateObjects(gt, est, Stamps(n), ObjectEvalOptions());
+  ASSERT_TRUE(e.ok()) << e.status();
+  ASSERT_EQ(e->by_class.size(), 3u);
+  // Sorted by class, moving first: person moving, car moving, car static.
+  EXPECT_EQ(e->by_class[0].class_id, 24);
+  EXPECT_TRUE(e->by_class[0].moving);
+  EXPECT_EQ(e->by_class[1].class_id, 26);
+  EXPECT_TRUE(e->by_class[1].moving);
+  EXPECT_EQ(e->by_class[2].class_id, 26);
+  EXPECT_FALSE(e->by_class[2].moving);
+  const ObjectAggregate& person = e->by_class[0].aggregate;
+  const ObjectAggregate& car = e->by_class[1].aggregate;
+  EXPECT_EQ(person.num_objects, 1);
+  EXPECT_EQ(car.num_objects, 1);
+  EXPECT_EQ(e->by_class[2].aggregate.num_objects, 1);
+  EXPECT_NEAR(car.ate, 0, 1e-9);
+  EXPECT_NEAR(car.rpe_t_per_m, 0, 1e-9);
+  // The walker's error grows by 0.5 m/s · dt per frame over 1.5 m/s · dt.
+  EXPECT_NEAR(person.rpe_t_per_m, 0.5 / 1.5, 1e-9);
+  EXPECT_GT(e->moving.ate, 0.0);
+  EXPECT_GT(e->moving.ate, car.ate);
+  EXPECT_EQ(e->moving.num_objects, 2);
+  const std::string table = FormatObjectTable(*e);
+  EXPECT_THAT(table, ::testing::HasSubstr("class 26 moving"));
+  EXPECT_THAT(table, ::testing::HasSubstr("class 24 moving"));
+  EXPECT_THAT(table, ::testing::HasSubstr("class 26 static"));
+  JsonWriter w;
+  WriteObjectsJson(*e, &w);
+  EXPECT_TRUE(w.complete());
+  EXPECT_THAT(w.str(), ::testing::HasSubstr("\"by_class\""));
+}
+
 TEST(ObjectMetrics, DuplicateRowsFail) {
   auto gt = MovingGt(1, 3, 1.0, Eigen::Vector3d::Zero());
   gt.push_back(gt[0]);
