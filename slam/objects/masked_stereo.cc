@@ -1,0 +1,163 @@
+#include "slam/objects/masked_stereo.h"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+namespace twist::objects {
+
+std::optional<double> MaskedDisparity(const cv::Mat& left,
+                                      const cv::Mat& right,
+                                      const cv::Mat& mask,
+                                      const Eigen::Vector2d& uv,
+                                      double initial_disparity,
+                                      double half_window,
+                                      const MaskedStereoOptions& options) {
+  if (left.empty() || right.empty() || mask.empty() || left.type() != CV_8UC1 ||
+      right.type() != CV_8UC1 || mask.type() != CV_8UC1 || left.size() != right.size() ||
+      left.size() != mask.size() || !std::isfinite(initial_disparity)) {
+    return std::nullopt;
+  }
+  const int h = std::clamp(static_cast<int>(std::lround(half_window)),
+                           options.min_half_window,
+                           options.max_half_window);
+  const int cx = static_cast<int>(std::lround(uv.x()));
+  const int cy = static_cast<int>(std::lround(uv.y()));
+  const int d0 = static_cast<int>(std::lround(initial_disparity));
+  const int s = options.search_px;
+  // The left window and every right window of the search inside the image.
+  if (cy - h < 0 || cy + h >= left.rows || cx - h < 0 || cx + h >= left.cols) return std::nullopt;
+  if (cx - h - (d0 + s + 1) < 0 || cx + h - (d0 - s - 1) >= left.cols) return std::nullopt;
+  if (d0 - s - 1 < 0) return std::nullopt;
+
+  // Masked left pixels, zero-mean.
+  std::vector<int> xs, ys;
+  std::vector<double> a;
+  for (int y = cy - h; y <= cy + h; ++y) {
+    const uint8_t* m = mask.ptr<uint8_t>(y);
+    const uint8_t* l = left.ptr<uint8_t>(y);
+    for (int x = cx - h; x <= cx + h; ++x) {
+      if (m[x] == 0) continue;
+      xs.push_back(x);
+      ys.push_back(y);
+      a.push_back(l[x]);
+    }
+  }
+  const int n = static_cast<int>(a.size());
+  const int side = 2 * h + 1;
+  if (n < options.min_pixels || n < options.min_mask_share * side * side) return std::nullopt;
+  double mean_a = 0.0;
+  for (double v : a) mean_a += v;
+  mean_a /= n;
+  double var_a = 0.0;
+  for (double& v : a) {
+    v -= mean_a;
+    var_a += v * v;
+  }
+  if (var_a / n < options.min_stddev * options.min_stddev) return std::nullopt;
+
+  // ZNCC for the disparities d0 − s − 1 ... d0 + s + 1 (the outer two only
+  // for the parabola).
+  const int count = 2 * s + 3;
+  std::vector<double> ncc(static_cast<size_t>(count), -1.0);
+  for (int j = 0; j < count; ++j) {
+    const int d = d0 - s - 1 + j;
+    double sum_b = 0.0, sum_bb = 0.0, sum_ab = 0.0;
+    for (int k = 0; k < n; ++k) {
+      const double b = right.ptr<uint8_t>(ys[static_cast<size_t>(k)])[xs[static_cast<size_t>(k)] - d];
+      sum_b += b;
+      sum_bb += b * b;
+      sum_ab += a[static_cast<size_t>(k)] * b;
+    }
+    const double var_b = sum_bb - sum_b * sum_b / n;
+    if (var_b <= 1e-9) continue;
+    ncc[static_cast<size_t>(j)] = sum_ab / std::sqrt(var_a * var_b);
+  }
+  int best = 1;
+  for (int j = 1; j + 1 < count; ++j) {
+    if (ncc[static_cast<size_t>(j)] > ncc[static_cast<size_t>(best)]) best = j;
+  }
+  if (ncc[static_cast<size_t>(best)] < options.min_ncc) return std::nullopt;
+  // On the search border: the true disparity may lie outside.
+  if (best == 1 || best == count - 2) return std::nullopt;
+  const double cm = ncc[static_cast<size_t>(best - 1)];
+  const double c0 = ncc[static_cast<size_t>(best)];
+  const double cp = ncc[static_cast<size_t>(best + 1)];
+  const double denom = cm - 2.0 * c0 + cp;
+  double offset = 0.0;
+  if (denom < -1e-12) offset = std::clamp(0.5 * (cm - cp) / denom, -0.5, 0.5);
+  const int d_int = d0 - s - 1 + best;
+  double d = d_int + offset;
+  if (options.gauss_newton_iterations <= 0) return d;
+
+  // Gauss–Newton on the disparity plane d(x, y) = d + gx (x − cx) + gy (y − cy),
+  // gain and offset of L(x, y) ≈ g·R(x − d(x, y), y) + o, with the right
+  // image interpolated linearly. The parabola through correlation samples
+  // leans towards integer disparities ("pixel locking", up to ~0.1 px), and
+  // on a slanted surface (a car's side) a constant disparity over a masked
+  // window, whose pixels may lie mostly on one side of the point, is the
+  // disparity of the window's centroid rather than of the point.
+  double g = 1.0, o = 0.0, gx = 0.0, gy = 0.0;
+  auto sample = [&](int k, double* b, double* slope) {
+    const double x = xs[static_cast<size_t>(k)] - d - gx * (xs[static_cast<size_t>(k)] - cx) -
+                     gy * (ys[static_cast<size_t>(k)] - cy);
+    const int x0 = static_cast<int>(std::floor(x));
+    if (x0 < 1 || x0 + 2 >= right.cols) return false;
+    const double t = x - x0;
+    const uint8_t* row = right.ptr<uint8_t>(ys[static_cast<size_t>(k)]);
+    *b = (1.0 - t) * row[x0] + t * row[x0 + 1];
+    // Central-difference slope, interpolated.
+    *slope = 0.5 * ((1.0 - t) * (row[x0 + 1] - row[x0 - 1]) + t * (row[x0 + 2] - row[x0]));
+    return true;
+  };
+  {
+    // Initial gain and offset from the means and deviations at d.
+    double sb = 0.0, sbb = 0.0, b = 0.0, slope = 0.0;
+    for (int k = 0; k < n; ++k) {
+      if (!sample(k, &b, &slope)) return std::nullopt;
+      sb += b;
+      sbb += b * b;
+    }
+    const double var_b = (sbb - sb * sb / n) / n;
+    if (var_b <= 1e-9) return std::nullopt;
+    g = std::sqrt(var_a / n / var_b);
+    o = mean_a - g * sb / n;
+  }
+  using Vector5d = Eigen::Matrix<double, 5, 1>;
+  using Matrix5d = Eigen::Matrix<double, 5, 5>;
+  for (int it = 0; it < options.gauss_newton_iterations; ++it) {
+    Matrix5d h_mat = Matrix5d::Zero();
+    Vector5d rhs = Vector5d::Zero();
+    double b = 0.0, slope = 0.0;
+    for (int k = 0; k < n; ++k) {
+      if (!sample(k, &b, &slope)) return std::nullopt;
+      const double r = g * b + o - (a[static_cast<size_t>(k)] + mean_a);
+      const double dx = xs[static_cast<size_t>(k)] - cx, dy = ys[static_cast<size_t>(k)] - cy;
+      Vector5d j;
+      j << -g * slope, -g * slope * dx, -g * slope * dy, b, 1.0;
+      h_mat += j * j.transpose();
+      rhs -= j * r;
+    }
+    // A weak prior towards zero slopes keeps the normal equations regular
+    // when the texture cannot determine a slope (e.g. vertical stripes).
+    h_mat(1, 1) += 25.0 * n;
+    h_mat(2, 2) += 25.0 * n;
+    rhs(1) -= 25.0 * n * gx;
+    rhs(2) -= 25.0 * n * gy;
+    const Vector5d step = h_mat.ldlt().solve(rhs);
+    if (!step.allFinite()) return std::nullopt;
+    d += std::clamp(step(0), -0.5, 0.5);
+    gx += step(1);
+    gy += step(2);
+    g += step(3);
+    o += step(4);
+    if (std::abs(step(0)) < 1e-4) break;
+  }
+  // The plane at the point itself (uv is sub-pixel on pyramid levels > 0).
+  d += gx * (uv.x() - cx) + gy * (uv.y() - cy);
+  if (std::abs(d - d_int) > 1.0 || !(g > 0.0)) return std::nullopt;
+  return d;
+}
+
+}  // namespace twist::objects

@@ -1,0 +1,174 @@
+// MaskedDisparity (object depths from the mask only): a synthetic foreground
+// patch over a background at another disparity, and the generator's rendered
+// cars against the renderer's exact depth (the regression for issue #5's
+// depth error of the object point clouds).
+#include "slam/objects/masked_stereo.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include "slam/features/orb_extractor.h"
+#include "slam/features/stereo_matcher.h"
+#include "slam/semantic/panoptic.h"
+#include "slam/sim/depth_truth.h"
+#include "slam/sim/renderer.h"
+#include "slam/sim/scenarios.h"
+
+namespace twist::objects {
+namespace {
+
+// Smooth band-limited texture (sum of sinusoids), sampled at continuous x.
+double Texture(double x, double y, double phase) {
+  return 128.0 + 40.0 * std::sin(0.9 * x + 0.3 * y + phase) + 30.0 * std::sin(0.37 * x - 0.8 * y + 2 * phase) +
+         25.0 * std::sin(1.7 * x + 1.1 * y + 3 * phase);
+}
+
+struct Synthetic {
+  cv::Mat left, right, mask;
+};
+
+// A foreground rectangle [x0, x1) × [y0, y1) at disparity d_fg over a
+// background at d_bg (both textured); right image with gain and offset.
+Synthetic MakeScene(double d_fg, double d_bg, double gain, double offset) {
+  const int w = 200, h = 120;
+  const int x0 = 80, x1 = 140, y0 = 30, y1 = 90;
+  Synthetic s;
+  s.left.create(h, w, CV_8UC1);
+  s.right.create(h, w, CV_8UC1);
+  s.mask = cv::Mat::zeros(h, w, CV_8UC1);
+  auto fg = [&](double x, double y) { return Texture(x, y, 0.0); };
+  auto bg = [&](double x, double y) { return Texture(0.8 * x, 0.8 * y, 1.3); };
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const bool in_fg = x >= x0 && x < x1 && y >= y0 && y < y1;
+      s.left.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(in_fg ? fg(x, y) : bg(x, y));
+      if (in_fg) s.mask.at<uint8_t>(y, x) = 255;
+      // Right pixel x shows the left position x + d of whichever surface is in front.
+      const double xf = x + d_fg;
+      const bool right_fg = xf >= x0 - 0.5 && xf < x1 - 0.5 && y >= y0 && y < y1;
+      const double v = right_fg ? fg(xf, y) : bg(x + d_bg, y);
+      s.right.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(gain * v + offset);
+    }
+  }
+  return s;
+}
+
+// Plain (unmasked) ZNCC disparity over the same window, for comparison.
+double UnmaskedDisparity(const Synthetic& s, const Eigen::Vector2d& uv, double d0, int half) {
+  cv::Mat all(s.mask.size(), CV_8UC1, cv::Scalar(255));
+  const auto d = MaskedDisparity(s.left, s.right, all, uv, d0, half);
+  return d ? *d : std::nan("");
+}
+
+TEST(MaskedStereo, ForegroundDisparityWhenTheWindowStraddlesTheBackground) {
+  const double d_fg = 12.3, d_bg = 4.0;
+  const Synthetic s = MakeScene(d_fg, d_bg, 1.1, -7.0);
+  // Keypoints 3-6 px inside the foreground's left border, 12 px windows.
+  for (int inside : {3, 4, 6}) {
+    const Eigen::Vector2d uv(80 + inside, 60);
+    const auto masked = MaskedDisparity(s.left, s.right, s.mask, uv, 11.0, 12.0);
+    ASSERT_TRUE(masked.has_value()) << inside;
+    EXPECT_NEAR(*masked, d_fg, 0.1) << inside;
+    const double plain = UnmaskedDisparity(s, uv, 11.0, 12);
+    std::printf("  %d px inside: masked %.3f, unmasked %.3f (true %.1f)\n", inside, *masked, plain, d_fg);
+  }
+  // Deep inside, masked and unmasked agree with the truth.
+  const auto centre = MaskedDisparity(s.left, s.right, s.mask, Eigen::Vector2d(110, 60), 12.0, 8.0);
+  ASSERT_TRUE(centre.has_value());
+  EXPECT_NEAR(*centre, d_fg, 0.1);
+  EXPECT_NEAR(UnmaskedDisparity(s, Eigen::Vector2d(110, 60), 12.0, 8), d_fg, 0.1);
+}
+
+TEST(MaskedStereo, RejectsWhatItCannotMeasure) {
+  const Synthetic s = MakeScene(12.3, 4.0, 1.0, 0.0);
+  // Outside the mask entirely: no pixels.
+  EXPECT_FALSE(MaskedDisparity(s.left, s.right, s.mask, Eigen::Vector2d(40, 60), 4.0, 8.0));
+  // A corner of the mask: too few pixels of a 9x9 window.
+  EXPECT_FALSE(MaskedDisparity(s.left, s.right, s.mask, Eigen::Vector2d(77, 27), 12.0, 4.0));
+  // The true disparity outside the search range (initial guess 7 px off).
+  EXPECT_FALSE(MaskedDisparity(s.left, s.right, s.mask, Eigen::Vector2d(110, 60), 5.0, 8.0));
+  // Window leaving the image.
+  EXPECT_FALSE(MaskedDisparity(s.left, s.right, s.mask, Eigen::Vector2d(3, 60), 12.0, 8.0));
+  // Untextured object.
+  Synthetic flat = s;
+  flat.left.setTo(100, flat.mask);
+  EXPECT_FALSE(MaskedDisparity(flat.left, flat.right, flat.mask, Eigen::Vector2d(110, 60), 12.0, 8.0));
+  // Wrong types.
+  cv::Mat wrong;
+  s.left.convertTo(wrong, CV_32F);
+  EXPECT_FALSE(MaskedDisparity(wrong, s.right, s.mask, Eigen::Vector2d(110, 60), 12.0, 8.0));
+}
+
+double Median(std::vector<double> v) {
+  std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+  return v[v.size() / 2];
+}
+
+double Mad(const std::vector<double>& v) {
+  const double m = Median(v);
+  std::vector<double> d;
+  for (double x : v) d.push_back(std::abs(x - m));
+  return Median(d);
+}
+
+// Cars 15-35 m away in the generator's `driving` scene: the keypoints on the
+// car (left mask) with a stereo match, their depth from the engine's matcher
+// and from the masked re-measurement, against the rendered depth under the
+// keypoint. Measured (seed 1, frames 0-90 step 6): the matcher's depth
+// spreads by MAD 2.7 %, the masked one by 1.1 %.
+TEST(MaskedStereo, RenderedCarsAgainstExactDepth) {
+  auto scenario = sim::MakeScenario("driving", 1, 100);
+  ASSERT_TRUE(scenario.ok());
+  const geometry::StereoCamera& cam = scenario->camera;
+  sim::RenderOptions ro;
+  ro.gray = true;
+  const sim::Renderer renderer(cam, ro);
+  const features::OrbExtractor orb(features::OrbOptions{});
+  const features::StereoMatchOptions so;
+  std::vector<double> raw, masked;
+  int failed = 0;
+  for (int frame = 0; frame <= 90; frame += 6) {
+    const sim::StereoRender r = sim::RenderScenarioFrame(renderer, *scenario, frame);
+    std::vector<cv::KeyPoint> kl, kr;
+    cv::Mat dl, dr;
+    std::vector<cv::Mat> ll, lr;
+    orb.Extract(r.left, cv::Mat(), &kl, &dl, &ll);
+    orb.Extract(r.right, cv::Mat(), &kr, &dr, &lr);
+    const features::StereoMatchResult st =
+        features::MatchStereo(cam, orb.pyramid(), kl, dl, kr, dr, ll, lr, so);
+    for (size_t k = 0; k < kl.size(); ++k) {
+      if (st.u_right[k] < 0.f) continue;
+      const int x = cvRound(kl[k].pt.x), y = cvRound(kl[k].pt.y);
+      const int label = r.panoptic.at<uint16_t>(y, x);
+      if (label / 1000 != sim::kClassCar) continue;
+      const double z_true = r.depth.at<float>(y, x);
+      if (!(z_true >= 15.0 && z_true <= 35.0)) continue;
+      const cv::Mat mask = semantic::SegmentMask(r.panoptic, semantic::PanopticLabel{label / 1000, label % 1000});
+      const double half = (so.sad_half_window + 0.5) * orb.pyramid().scale[kl[k].octave];
+      const double d_raw = kl[k].pt.x - st.u_right[k];
+      raw.push_back(cam.bf() / d_raw / z_true - 1.0);
+      const auto d = MaskedDisparity(r.left, r.right, mask, Eigen::Vector2d(kl[k].pt.x, kl[k].pt.y), d_raw, half);
+      if (!d) {
+        ++failed;
+        continue;
+      }
+      masked.push_back(cam.bf() / *d / z_true - 1.0);
+    }
+  }
+  ASSERT_GE(raw.size(), 100u);
+  ASSERT_GE(masked.size(), raw.size() / 2);
+  std::printf("  %zu car keypoints at 15-35 m: matcher depth median %+.2f %%, MAD %.2f %%; "
+              "masked (%zu, %d failed) median %+.2f %%, MAD %.2f %%\n",
+              raw.size(), 100 * Median(raw), 100 * Mad(raw), masked.size(), failed,
+              100 * Median(masked), 100 * Mad(masked));
+  EXPECT_LT(std::abs(Median(masked)), 0.005);
+  EXPECT_LT(Mad(masked), 0.016);
+  EXPECT_LT(Mad(masked), 0.7 * Mad(raw));
+}
+
+}  // namespace
+}  // namespace twist::objects
