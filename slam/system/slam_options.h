@@ -37,10 +37,12 @@ struct SlamOptions {
   int object_ba_iterations = 5;  // Levenberg-Marquardt iterations per frame
   // Keypoints of dynamic-class instances the object stage has seen standing
   // still (parked cars) are used by the static camera pipeline (tracking and
-  // mapping) until the instance moves again. Off by default: it helps where
-  // many parked cars are tracked (follow_braking) but not on the other
-  // generated scenarios (docs/objects.md §9).
-  bool parked_objects_static = false;
+  // mapping) until the instance moves again (issue #5: parked cars' points
+  // help the camera as static ones do). On by default: over 8 runs (4
+  // scenarios x 2 seeds, 100 frames) camera RPE_t drops in 7 and by 6 % on
+  // average, level with the engine that ignores masks, while ATE stays half of
+  // that engine's (docs/objects.md §12).
+  bool parked_objects_static = true;
   // Seed for every random choice (RANSAC): same input -> same output.
   uint64_t seed = 42;
 

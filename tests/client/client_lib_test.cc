@@ -61,7 +61,7 @@ TEST(SlamConvert, SessionConfigSurvivesTheServerSetup) {
   config.options.seed = 99;
   config.options.object_ba_window_frames = 7;
   config.options.object_ba_iterations = 3;
-  config.options.parked_objects_static = true;
+  config.options.parked_objects_static = false;  // not the default
   const pb::SessionConfig wire = SessionConfigToProto(config);
   pb::CreateSessionRequest request;
   *request.mutable_config() = wire;
@@ -77,7 +77,7 @@ TEST(SlamConvert, SessionConfigSurvivesTheServerSetup) {
   EXPECT_EQ(setup->config.options.seed, 99u);
   EXPECT_EQ(setup->config.options.object_ba_window_frames, 7);
   EXPECT_EQ(setup->config.options.object_ba_iterations, 3);
-  EXPECT_TRUE(setup->config.options.parked_objects_static);
+  EXPECT_FALSE(setup->config.options.parked_objects_static);
   EXPECT_EQ(setup->config.classes.ToText(), config.classes.ToText());
   EXPECT_EQ(setup->policy.queue_capacity(), 4);
   EXPECT_EQ(setup->policy.overflow(), pb::OVERFLOW_POLICY_BLOCK);

@@ -255,12 +255,12 @@ TEST(Convert, OptionsOverrideOnlyWhatIsSet) {
   pb::SlamOptions objects;
   objects.set_object_ba_window_frames(0);
   objects.set_object_ba_iterations(4);
-  objects.set_parked_objects_static(true);
+  objects.set_parked_objects_static(false);  // the default is true
   SlamOptions o2;
   ASSERT_TRUE(ApplyOptions(objects, &o2).ok());
   EXPECT_EQ(o2.object_ba_window_frames, 0);
   EXPECT_EQ(o2.object_ba_iterations, 4);
-  EXPECT_TRUE(o2.parked_objects_static);
+  EXPECT_FALSE(o2.parked_objects_static);
   EXPECT_EQ(o2.num_features, SlamOptions().num_features);
 }
 

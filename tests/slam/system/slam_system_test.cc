@@ -172,7 +172,7 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   EXPECT_EQ(SlamSystem::Create(config).status().code(), absl::StatusCode::kInvalidArgument);
   config.options.object_ba_window_frames = 7;
   config.options.object_ba_iterations = 3;
-  config.options.parked_objects_static = true;
+  config.options.parked_objects_static = false;  // not the default
   auto sys = SlamSystem::Create(config);
   ASSERT_TRUE(sys.ok());
   ASSERT_TRUE((*sys)->Process(SmallClip().frames[0]).ok());
@@ -182,7 +182,7 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   ASSERT_TRUE(loaded.ok()) << loaded.status();
   EXPECT_EQ((*loaded)->config().options.object_ba_window_frames, 7);
   EXPECT_EQ((*loaded)->config().options.object_ba_iterations, 3);
-  EXPECT_TRUE((*loaded)->config().options.parked_objects_static);
+  EXPECT_FALSE((*loaded)->config().options.parked_objects_static);
   std::remove(path.c_str());
 }
 
