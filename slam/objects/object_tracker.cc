@@ -139,6 +139,9 @@ absl::Status ObjectTrackerOptions::Validate() const {
     return absl::InvalidArgumentError(
         "object tracker max_points_per_object < min_points_to_create");
   }
+  if (!(stereo_level0_half_px > 0.0)) {
+    return absl::InvalidArgumentError("object tracker needs stereo_level0_half_px > 0");
+  }
   if (!(max_depth_m > 0.0) || !(max_depth_spread_m > 0.0) || max_frames_lost < 0) {
     return absl::InvalidArgumentError(
         "object tracker needs max_depth_m > 0, max_depth_spread_m > 0, max_frames_lost >= 0");
@@ -308,11 +311,18 @@ bool ObjectTracker::Create(const FrameContext& ctx,
   std::vector<double> depths;
   for (const auto& p : p_cam) depths.push_back(p.z());
   const double median_depth = Median(depths);
-  if (options_.max_create_depth_sigma_m > 0.0 &&
-      median_depth * median_depth * options_.disparity_sigma_px / camera_.bf() >
-          options_.max_create_depth_sigma_m) {
-    return false;
+  // Depth noise of the structure: the median over the points of
+  // z² σ_d s / (f b), s the scale of the keypoint's pyramid level (its stereo
+  // block relative to level 0's): the matcher refines on that level.
+  std::vector<double> sigmas;
+  for (size_t j = 0; j < idx.size(); ++j) {
+    const double s = kps.stereo_support_px.empty()
+                         ? 1.0
+                         : kps.stereo_support_px[idx[j]] / options_.stereo_level0_half_px;
+    sigmas.push_back(p_cam[j].z() * p_cam[j].z() * options_.disparity_sigma_px * s / camera_.bf());
   }
+  if (options_.max_create_depth_sigma_m > 0.0 && Median(sigmas) > options_.max_create_depth_sigma_m)
+    return false;
   std::vector<Eigen::Vector3d> p_world;
   std::vector<size_t> kept;
   for (size_t j = 0; j < idx.size(); ++j) {

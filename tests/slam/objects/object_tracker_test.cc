@@ -179,6 +179,29 @@ TEST(ObjectTracker, FarObjectIsCreatedOnlyOnceItsStereoDepthIsUsable) {
   EXPECT_EQ(c->size(), 1u);
 }
 
+TEST(ObjectTracker, CreationDepthNoiseCountsTheKeypointsPyramidLevels) {
+  // 28 m ahead: with level-0 stereo the depth noise is 28² · 0.3 / bf ≈ 0.6 m
+  // (created); with every keypoint refined on level 3 (block 1.2³ times level
+  // 0's) it is ≈ 1.04 m > 0.8 m (not created, docs/objects.md §11).
+  CarSequence seq(0.0, 25, 3.0, 60, 28.0);
+  seq.set_step(Vector6d::Zero());
+  ObjectFrameInput f = seq.Next(8, true);
+  ObjectTracker level0(seq.camera(), ObjectTrackerOptions{});
+  f.keypoints.stereo_support_px.assign(f.keypoints.uv.size(), 5.5);
+  const auto a = level0.Process(f);
+  ASSERT_TRUE(a.ok());
+  EXPECT_EQ(a->size(), 1u);
+  ObjectTracker level3(seq.camera(), ObjectTrackerOptions{});
+  f.keypoints.stereo_support_px.assign(f.keypoints.uv.size(), 5.5 * 1.2 * 1.2 * 1.2);
+  const auto b = level3.Process(f);
+  ASSERT_TRUE(b.ok());
+  EXPECT_TRUE(b->empty());
+  // A support list of the wrong size is malformed input.
+  f.keypoints.stereo_support_px.pop_back();
+  ObjectTracker malformed(seq.camera(), ObjectTrackerOptions{});
+  EXPECT_FALSE(malformed.Process(f).ok());
+}
+
 TEST(ObjectTracker, MatchingMeasurementsDoNotInheritFlowDrift) {
   // The flow drifts 0.4 px/frame to the right; keypoints are exact. Chained
   // flow positions walk off their points, matched keypoints do not.
