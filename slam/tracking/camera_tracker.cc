@@ -96,14 +96,28 @@ TrackingState CameraTracker::Track(map::Frame* frame, map::Map* map) {
   TrackingPath path = TrackingPath::kNone;
   if (state_ == TrackingState::kOk || state_ == TrackingState::kRelocalized) {
     UpdateLastFrame(map);
+    int inliers = 0;
     if (velocity_.has_value()) {
-      ok = TrackWithMotionModel(frame, map);
+      inliers = TrackWithMotionModel(frame, map);
       path = TrackingPath::kMotionModel;
     }
-    if (!ok) {
-      ok = TrackReferenceKeyFrame(frame, map);
+    if (inliers == 0) {
+      inliers = TrackReferenceKeyFrame(frame, map);
       path = TrackingPath::kReferenceKeyFrame;
+    } else if (inliers < options_.confident_motion_inliers) {
+      // A weak motion-model pose: descriptor tracking of the reference
+      // keyframe, which needs no prior, gets a say.
+      map::Frame alternative = *frame;
+      const int alt_inliers = TrackReferenceKeyFrame(&alternative, map);
+      VLOG(1) << "frame " << frame->id << ": weak motion model (" << inliers
+              << " inliers), reference keyframe " << alt_inliers;
+      if (alt_inliers > inliers) {
+        *frame = std::move(alternative);
+        inliers = alt_inliers;
+        path = TrackingPath::kReferenceKeyFrame;
+      }
     }
+    ok = inliers > 0;
   } else {
     frame->camera_from_world = last_frame_.camera_from_world;
     ok = Relocalize(frame, map);
@@ -311,7 +325,7 @@ int CameraTracker::Optimize(map::Frame* frame) {
   return inliers;
 }
 
-bool CameraTracker::TrackWithMotionModel(map::Frame* frame, map::Map* map) {
+int CameraTracker::TrackWithMotionModel(map::Frame* frame, map::Map* map) {
   frame->camera_from_world = *velocity_ * last_frame_.camera_from_world;
   int n = SearchLastFrame(frame, last_frame_, static_cast<float>(options_.motion_search_radius));
   if (n < 20) {
@@ -319,7 +333,7 @@ bool CameraTracker::TrackWithMotionModel(map::Frame* frame, map::Map* map) {
     n = SearchLastFrame(frame, last_frame_, 2.f * options_.motion_search_radius);
   }
   VLOG(2) << "motion model matches " << n;
-  if (n < 20) return false;
+  if (n < 20) return 0;
   Optimize(frame);
   int map_inliers = 0;
   for (int i = 0; i < static_cast<int>(frame->matched.size()); ++i) {
@@ -330,14 +344,17 @@ bool CameraTracker::TrackWithMotionModel(map::Frame* frame, map::Map* map) {
       ++map_inliers;
     }
   }
-  return map_inliers >= options_.min_motion_inliers;
+  return map_inliers >= options_.min_motion_inliers ? map_inliers : 0;
 }
 
 namespace {
 
-// EPnP inside RANSAC (OpenCV; deterministic) with the tracker's settings:
-// 300 iterations, 3 px, confidence 0.99. Returns false unless it converges
-// to a finite pose with at least 10 inliers.
+// PnP inside RANSAC (OpenCV; deterministic) with the tracker's settings:
+// 300 iterations, 3 px, confidence 0.99, AP3P on 4-point samples. Returns
+// false unless it converges to a finite pose with at least 10 inliers, 90 %
+// of them in front of the camera. EPnP on minimal samples was unstable: on
+// intersection seed 1 it returned a pose 16 m off with 183 "inliers" of 228
+// (a third of them behind the camera), where AP3P finds the true one.
 bool SolvePnpRansac(const geometry::StereoCamera& camera,
                     const std::vector<cv::Point3f>& obj,
                     const std::vector<cv::Point2f>& img,
@@ -357,7 +374,7 @@ bool SolvePnpRansac(const geometry::StereoCamera& camera,
                           3.0f,
                           0.99,
                           *inliers,
-                          cv::SOLVEPNP_EPNP) ||
+                          cv::SOLVEPNP_AP3P) ||
       inliers->size() < 10) {
     return false;
   }
@@ -368,11 +385,18 @@ bool SolvePnpRansac(const geometry::StereoCamera& camera,
   cv::cv2eigen(Rcv, R);
   cv::cv2eigen(tvec, t);
   if (!R.allFinite() || !t.allFinite()) return false;
-  *camera_from_world = geometry::SE3d(Eigen::Quaterniond(R).normalized(), t);
+  const geometry::SE3d pose(Eigen::Quaterniond(R).normalized(), t);
+  size_t in_front = 0;
+  for (int k : *inliers) {
+    const Eigen::Vector3d p(obj[k].x, obj[k].y, obj[k].z);
+    in_front += (pose * p).z() > 0.0;
+  }
+  if (10 * in_front < 9 * inliers->size()) return false;
+  *camera_from_world = pose;
   return true;
 }
 
-// PnP RANSAC (OpenCV EPnP, deterministic) on the frame's current matches;
+// PnP RANSAC (SolvePnpRansac) on the frame's current matches;
 // on success sets the pose and clears the outlier matches.
 bool PoseFromMatchesRansac(const geometry::StereoCamera& camera, map::Frame* frame) {
   const auto& f = *frame->features;
@@ -400,9 +424,9 @@ bool PoseFromMatchesRansac(const geometry::StereoCamera& camera, map::Frame* fra
 
 }  // namespace
 
-bool CameraTracker::TrackReferenceKeyFrame(map::Frame* frame, map::Map* map) {
+int CameraTracker::TrackReferenceKeyFrame(map::Frame* frame, map::Map* map) {
   const map::KeyFrame* ref = map->keyframe(reference_kf_id_);
-  if (ref == nullptr) return false;
+  if (ref == nullptr) return 0;
   frame->ResetMatches();
   frame->camera_from_world = last_frame_.camera_from_world;
   // No usable motion prior: match the reference keyframe's points by
@@ -421,7 +445,7 @@ bool CameraTracker::TrackReferenceKeyFrame(map::Frame* frame, map::Map* map) {
     pids.push_back(p->id);
     kps.push_back(i);
   }
-  if (pids.size() < 15 || query_index.size() < 15) return false;
+  if (pids.size() < 15 || query_index.size() < 15) return 0;
   cv::Mat query(static_cast<int>(query_index.size()), 32, CV_8UC1);
   for (size_t k = 0; k < query_index.size(); ++k) {
     std::memcpy(query.ptr<uint8_t>(static_cast<int>(k)), f.descriptor(query_index[k]), 32);
@@ -441,7 +465,7 @@ bool CameraTracker::TrackReferenceKeyFrame(map::Frame* frame, map::Map* map) {
   for (int j : rot.Rejected()) frame->ClearMatch(j);
   int n = 0;
   for (uint8_t x : frame->matched) n += x;
-  if (n < 15) return false;
+  if (n < 15) return 0;
   // The last pose may be far off (no velocity): an initial pose from PnP
   // RANSAC avoids optimising from a poor start with wrong matches.
   PoseFromMatchesRansac(camera_, frame);
@@ -455,7 +479,7 @@ bool CameraTracker::TrackReferenceKeyFrame(map::Frame* frame, map::Map* map) {
       ++inliers;
     }
   }
-  return inliers >= options_.min_motion_inliers;
+  return inliers >= options_.min_motion_inliers ? inliers : 0;
 }
 
 int CameraTracker::SearchLocalPoints(map::Frame* frame,

@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <cstring>
 #include <random>
 
 #include "slam/mapping/local_mapper.h"
@@ -130,6 +131,61 @@ TEST_F(TrackerTest, RelocalizesAfterAForcedLoss) {
   EXPECT_EQ(tracker_.stats().path, TrackingPath::kRelocalization);
   EXPECT_LT(testing::TranslationError(f.camera_from_world.Inverse(), TruePose(10)), 0.05);
   EXPECT_LT(testing::RotationErrorDeg(f.camera_from_world.Inverse(), TruePose(10)), 0.1);
+}
+
+TEST_F(TrackerTest, AWeakMotionModelPoseLosesToTheReferenceKeyFrame) {
+  // A sudden 4-degree turn: every true keypoint lies ~50 px from where the
+  // constant-velocity prediction puts it, outside the motion model's search
+  // windows. Decoys (repetitive texture) sit exactly at the predicted
+  // positions of 40 map points with their descriptors, so the motion model
+  // finds a consistent but wrong pose with at most 40 inliers. Descriptor tracking
+  // of the reference keyframe (PnP RANSAC) must win over it.
+  std::vector<geometry::SE3d> poses;
+  Run(8, &poses);
+  const geometry::SE3d turn(geometry::SO3d::Exp(Eigen::Vector3d(0, 4.0 * M_PI / 180.0, 0)),
+                            Eigen::Vector3d::Zero());
+  const geometry::SE3d truth = TruePose(8) * turn;  // world_from_camera
+  auto features = std::make_shared<map::FrameFeatures>(
+      *Observe(world_, cam_, pyramid_, truth.Inverse(), 808));
+  const geometry::SE3d predicted = TruePose(8).Inverse();  // camera_from_world
+  int decoys = 0;
+  std::vector<uint8_t> rows(features->descriptors.data,
+                            features->descriptors.data + features->descriptors.total());
+  for (size_t i = 0; i < world_.points.size() && decoys < 40; ++i) {
+    const Eigen::Vector3d pc = predicted * world_.points[i];
+    Eigen::Vector3d uvr;
+    if (pc.z() < 5.0 || pc.z() > 25.0 || !cam_.ProjectStereoChecked(pc, &uvr)) continue;
+    if (!cam_.InImage(uvr.head<2>(), 40.0)) continue;
+    // One decoy per pyramid level the world's keypoints use, so that the
+    // motion model's level window around the last observation admits one.
+    for (int level = 0; level < 4; ++level) {
+      features->keypoints.emplace_back(static_cast<float>(uvr.x()),
+                                       static_cast<float>(uvr.y()),
+                                       31.f * pyramid_.scale[level],
+                                       0.f,
+                                       50.f,
+                                       level);
+      features->u_right.push_back(static_cast<float>(uvr.z()));
+      features->depth.push_back(static_cast<float>(pc.z()));
+      rows.insert(rows.end(), world_.descriptors[i].begin(), world_.descriptors[i].end());
+    }
+    ++decoys;
+  }
+  ASSERT_EQ(decoys, 40);
+  features->descriptors = cv::Mat(static_cast<int>(features->keypoints.size()), 32, CV_8UC1);
+  std::memcpy(features->descriptors.data, rows.data(), rows.size());
+  features->labels.clear();
+  features->is_static.clear();
+  map::Frame f;
+  f.id = 8;
+  f.timestamp_ns = 800'000'000LL;
+  f.features = map::FinalizeFeatures(std::move(*features), cam_.width, cam_.height);
+  f.ResetMatches();
+  EXPECT_EQ(tracker_.Track(&f, &map_), TrackingState::kOk);
+  EXPECT_EQ(tracker_.stats().path, TrackingPath::kReferenceKeyFrame);
+  EXPECT_GT(tracker_.stats().num_inliers, 100);
+  EXPECT_LT(testing::RotationErrorDeg(f.camera_from_world.Inverse(), truth), 0.1);
+  EXPECT_LT(testing::TranslationError(f.camera_from_world.Inverse(), truth), 0.05);
 }
 
 TEST_F(TrackerTest, StaysLostWhenNothingMatches) {
