@@ -112,13 +112,7 @@ int main(int argc, char** argv) {
     int not_ok = 0;
     for (int f = 0; f < frames; ++f) {
       const sim::StereoRender r = sim::RenderScenarioFrame(renderer, *sc, f);
-      StereoFrame sf;
-      sf.index = f;
-      sf.timestamp_ns = static_cast<int64_t>(std::llround(sc->TimeOf(f) * 1e9)) + 1000;
-      sf.left = r.left;
-      sf.right = r.right;
-      sf.panoptic = r.panoptic;
-      auto res = (*sys)->Process(sf);
+      auto res = (*sys)->Process(sim::ScenarioStereoFrame(*sc, f, r));
       not_ok += res->state != TrackingState::kOk;
       est.push_back(res->world_from_camera);
       gt.push_back(sc->WorldFromCamera(f));

@@ -306,13 +306,7 @@ int Run(const std::string& name,
   SessionConfig config;
   config.camera = cam;
   const SlamOptions& so = config.options;
-  features::OrbOptions orb_options;
-  orb_options.num_features = so.num_features;
-  orb_options.num_levels = so.num_levels;
-  orb_options.scale_factor = so.scale_factor;
-  orb_options.fast_threshold = so.fast_threshold;
-  orb_options.min_fast_threshold = std::min(7, so.fast_threshold);
-  features::OrbExtractor orb(orb_options);
+  features::OrbExtractor orb(OrbOptionsFrom(so));
   ObjectStageOptions stage_options;
   stage_options.ba_window_frames = ba_window;
   stage_options.ba_iterations = so.object_ba_iterations;

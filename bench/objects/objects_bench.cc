@@ -43,6 +43,7 @@
 #include "slam/objects/flow_association.h"
 #include "slam/objects/object_ba.h"
 #include "slam/objects/object_tracker.h"
+#include "slam/sim/depth_truth.h"
 #include "slam/sim/renderer.h"
 #include "slam/sim/scenarios.h"
 #include "slam/system/slam_system.h"
@@ -243,12 +244,7 @@ absl::StatusOr<EngineResult> RunEngine(const std::string& scenario_name,
     right.noise_seed = 2 * static_cast<uint64_t>(k) + 2;
     const twist::sim::StereoRender img = renderer.RenderStereo(
         scenario->scene, scenario->TimeOf(k), scenario->WorldFromCamera(k), left, right);
-    twist::StereoFrame f;
-    f.index = k;
-    f.timestamp_ns = static_cast<int64_t>(std::llround(scenario->TimeOf(k) * 1e9)) + 1000;
-    f.left = img.left;
-    f.right = img.right;
-    f.panoptic = img.panoptic;
+    const twist::StereoFrame f = twist::sim::ScenarioStereoFrame(*scenario, k, img);
     const double cpu0 = ProcessCpuMs();
     auto out = (*sys)->Process(f);
     r.process_cpu_ms.push_back(ProcessCpuMs() - cpu0);

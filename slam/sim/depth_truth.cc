@@ -44,4 +44,14 @@ StereoRender RenderScenarioFrame(const Renderer& renderer, const Scenario& scena
       scenario.scene, scenario.TimeOf(frame), scenario.WorldFromCamera(frame), left, right);
 }
 
+StereoFrame ScenarioStereoFrame(const Scenario& scenario, int frame, const StereoRender& render) {
+  StereoFrame f;
+  f.index = frame;
+  f.timestamp_ns = static_cast<int64_t>(std::llround(scenario.TimeOf(frame) * 1e9)) + 1000;
+  f.left = render.left;
+  f.right = render.right;
+  f.panoptic = render.panoptic;
+  return f;
+}
+
 }  // namespace twist::sim

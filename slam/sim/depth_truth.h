@@ -6,6 +6,7 @@
 #include <opencv2/core.hpp>
 #include <optional>
 
+#include "slam/common/stereo_frame.h"
 #include "slam/sim/renderer.h"
 #include "slam/sim/scenarios.h"
 
@@ -34,5 +35,10 @@ std::optional<PlanarDisparityFit> PlanarDisparity(const cv::Mat& depth,
 // Frame `frame` of a scenario rendered with that frame's exposures, exactly
 // as `twistslam generate` writes it.
 StereoRender RenderScenarioFrame(const Renderer& renderer, const Scenario& scenario, int frame);
+
+// The engine's input for frame `frame` of `scenario` rendered as `render`:
+// index, timestamp (the frame's time in ns, + 1 µs: the convention of the
+// rendered clips of the tests and benchmarks), left, right and panoptic.
+StereoFrame ScenarioStereoFrame(const Scenario& scenario, int frame, const StereoRender& render);
 
 }  // namespace twist::sim

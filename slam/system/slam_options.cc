@@ -1,9 +1,20 @@
 #include "slam/system/slam_options.h"
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 
 namespace twist {
+
+features::OrbOptions OrbOptionsFrom(const SlamOptions& o) {
+  features::OrbOptions orb;
+  orb.num_features = o.num_features;
+  orb.num_levels = o.num_levels;
+  orb.scale_factor = o.scale_factor;
+  orb.fast_threshold = o.fast_threshold;
+  orb.min_fast_threshold = std::min(7, o.fast_threshold);
+  return orb;
+}
 
 absl::Status SlamOptions::Validate() const {
   auto bad = [](const std::string& what) { return absl::InvalidArgumentError("options: " + what); };

@@ -3,6 +3,7 @@
 #pragma once
 
 #include "absl/status/status.h"
+#include "slam/features/orb_extractor.h"
 #include "slam/geometry/stereo_camera.h"
 #include "slam/joints/class_table.h"
 
@@ -48,6 +49,9 @@ struct SlamOptions {
 
   absl::Status Validate() const;
 };
+
+// The ORB extractor settings of `options` (the engine's feature front end).
+features::OrbOptions OrbOptionsFrom(const SlamOptions& options);
 
 struct SessionConfig {
   geometry::StereoCamera camera;

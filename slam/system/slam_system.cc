@@ -36,16 +36,6 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // objects restart after the resume.
 constexpr uint32_t kFormatVersion = 4;
 
-features::OrbOptions OrbOptionsFrom(const SlamOptions& o) {
-  features::OrbOptions orb;
-  orb.num_features = o.num_features;
-  orb.num_levels = o.num_levels;
-  orb.scale_factor = o.scale_factor;
-  orb.fast_threshold = o.fast_threshold;
-  orb.min_fast_threshold = std::min(7, o.fast_threshold);
-  return orb;
-}
-
 tracking::TrackerOptions TrackerOptionsFrom(const SlamOptions& o) {
   tracking::TrackerOptions t;
   t.close_depth_baselines = o.max_depth_baselines;
@@ -380,7 +370,11 @@ class SlamSystemImpl final : public SlamSystem {
 
  private:
   absl::Status ValidateInput(const StereoFrame& frame) const;
+  // `left` and `right`: the frame's images in gray (the object stage gets the
+  // same ones).
   std::shared_ptr<map::FrameFeatures> ExtractFeatures(const StereoFrame& frame,
+                                                      const cv::Mat& left,
+                                                      const cv::Mat& right,
                                                       std::vector<StageTiming>* timings) const;
 
   SessionConfig config_;
@@ -434,10 +428,11 @@ absl::Status SlamSystemImpl::ValidateInput(const StereoFrame& frame) const {
 }
 
 std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
-    const StereoFrame& frame, std::vector<StageTiming>* timings) const {
+    const StereoFrame& frame,
+    const cv::Mat& left,
+    const cv::Mat& right,
+    std::vector<StageTiming>* timings) const {
   Stopwatch sw;
-  const cv::Mat left = ToGray(frame.left);
-  const cv::Mat right = ToGray(frame.right);
   map::FrameFeatures f;
   std::vector<cv::KeyPoint> right_kps;
   cv::Mat right_desc;
@@ -494,7 +489,9 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
   map::Frame frame;
   frame.id = frames_processed_;
   frame.timestamp_ns = input.timestamp_ns;
-  frame.features = ExtractFeatures(input, &result.timings);
+  const cv::Mat left_gray = ToGray(input.left);
+  const cv::Mat right_gray = ToGray(input.right);
+  frame.features = ExtractFeatures(input, left_gray, right_gray, &result.timings);
   frame.ResetMatches();
 
   if (frames_processed_ == 1 && input.timestamp_ns > first_timestamp_ns_) {
@@ -581,8 +578,8 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
     ObjectStageInput oi;
     oi.frame_index = input.index;
     oi.timestamp_ns = input.timestamp_ns;
-    oi.left = ToGray(input.left);
-    oi.right = ToGray(input.right);
+    oi.left = left_gray;
+    oi.right = right_gray;
     oi.panoptic = input.panoptic;
     oi.flow = input.flow;
     oi.features = frame.features.get();

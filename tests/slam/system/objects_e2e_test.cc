@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "slam/io/metrics.h"
+#include "slam/sim/depth_truth.h"
 #include "slam/sim/labels.h"
 #include "slam/sim/renderer.h"
 #include "slam/sim/scenarios.h"
@@ -55,12 +56,7 @@ E2eRun RunScenario(const std::string& name, int frames, bool constrained = true)
     right.noise_seed = 2 * k + 2;
     const sim::StereoRender r =
         renderer.RenderStereo(sc.scene, sc.TimeOf(k), world_from_camera, left, right);
-    StereoFrame f;
-    f.index = k;
-    f.timestamp_ns = static_cast<int64_t>(std::llround(sc.TimeOf(k) * 1e9)) + 1000;
-    f.left = r.left;
-    f.right = r.right;
-    f.panoptic = r.panoptic;
+    const StereoFrame f = sim::ScenarioStereoFrame(sc, k, r);
     absl::StatusOr<FrameResult> res = (*sys)->Process(f);
     CHECK(res.ok()) << res.status();
     for (const ObjectResult& o : res->objects) {
@@ -244,13 +240,7 @@ TEST(ObjectsEndToEnd, SwitchesAndResume) {
   for (int k = 0; k < 8; ++k) {
     const sim::StereoRender r = renderer.RenderStereo(
         scenario->scene, scenario->TimeOf(k), scenario->WorldFromCamera(k), {}, {1.0, 0.0, 99});
-    StereoFrame f;
-    f.index = k;
-    f.timestamp_ns = static_cast<int64_t>(std::llround(scenario->TimeOf(k) * 1e9)) + 1000;
-    f.left = r.left;
-    f.right = r.right;
-    f.panoptic = r.panoptic;
-    frames.push_back(f);
+    frames.push_back(sim::ScenarioStereoFrame(*scenario, k, r));
   }
   auto run = [&](SessionConfig config, int save_at) {
     config.camera = scenario->camera;

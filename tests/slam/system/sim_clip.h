@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "slam/sim/depth_truth.h"
 #include "slam/sim/renderer.h"
 #include "slam/sim/scenarios.h"
 #include "slam/system/slam_system.h"
@@ -47,13 +48,7 @@ inline Clip MakeClip(const std::string& scenario_name, int n, double scale, bool
     right.noise_seed = 2 * k + 2;
     const sim::StereoRender r =
         renderer.RenderStereo(scenario->scene, scenario->TimeOf(k), pose, left, right);
-    StereoFrame f;
-    f.index = k;
-    f.timestamp_ns = static_cast<int64_t>(std::llround(scenario->TimeOf(k) * 1e9)) + 1000;
-    f.left = r.left;
-    f.right = r.right;
-    f.panoptic = r.panoptic;
-    clip.frames.push_back(f);
+    clip.frames.push_back(sim::ScenarioStereoFrame(*scenario, k, r));
     clip.gt.push_back(pose);
   }
   return clip;
