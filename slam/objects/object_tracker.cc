@@ -146,6 +146,13 @@ absl::Status ObjectTrackerOptions::Validate() const {
     return absl::InvalidArgumentError(
         "object tracker needs max_depth_m > 0, max_depth_spread_m > 0, max_frames_lost >= 0");
   }
+  if (!(acceleration_sigma_mps2 >= 0.0) || !(angular_acceleration_sigma_radps2 > 0.0) ||
+      !(max_step_sigma_px > 0.0) || !(filter_gate_confidence > 0.0) ||
+      !(filter_gate_confidence < 1.0) || max_coast_frames < 0) {
+    return absl::InvalidArgumentError(
+        "object tracker needs acceleration_sigma_mps2 >= 0, angular_acceleration_sigma_radps2 > 0, "
+        "max_step_sigma_px > 0, 0 < filter_gate_confidence < 1 and max_coast_frames >= 0");
+  }
   return absl::OkStatus();
 }
 
@@ -174,7 +181,7 @@ double ObjectTracker::ObjectStereo(const FrameContext& ctx,
                                                   kps.uv[k].x() - u_right,
                                                   half,
                                                   options_.masked_stereo_options);
-  const double result = d && *d > 0.0                          ? kps.uv[k].x() - *d
+  const double result = d && *d > 0.0                            ? kps.uv[k].x() - *d
                         : options_.masked_stereo_keep_unmeasured ? u_right
                                                                  : -1.0;
   cache.emplace(k, result);
@@ -368,6 +375,53 @@ bool ObjectTracker::Create(const FrameContext& ctx,
   return true;
 }
 
+Matrix6d ObjectTracker::PredictedCovariance(const FrameContext& ctx, const TrackedObject& o) const {
+  // Random acceleration over the step, as a change of the per-step twist at
+  // the object's origin c: δv = a·dt², δω = α·dt²; moved to the world
+  // origin by v = v_c + c × ω.
+  const double dt2 = ctx.dt * ctx.dt;
+  const double qv = std::pow(options_.acceleration_sigma_mps2 * dt2, 2);
+  const double qw = std::pow(options_.angular_acceleration_sigma_radps2 * dt2, 2);
+  Matrix6d q = Matrix6d::Zero();
+  q.topLeftCorner<3, 3>() = qv * Eigen::Matrix3d::Identity();
+  q.bottomRightCorner<3, 3>() = qw * Eigen::Matrix3d::Identity();
+  Matrix6d to_world = Matrix6d::Identity();
+  to_world.topRightCorner<3, 3>() = geometry::SO3d::Hat(o.world_from_object.translation());
+  const double r = o.step_seconds > 0.0 ? ctx.dt / o.step_seconds : 1.0;
+  const Matrix6d projector = o.joint.WorldProjector();
+  return projector * (r * r * o.twist_covariance + to_world * q * to_world.transpose()) *
+         projector.transpose();
+}
+
+bool ObjectTracker::FilterStep(const TrackedObject& o,
+                               const Vector6d& predicted,
+                               const Matrix6d& predicted_covariance,
+                               TwistEstimate* est) const {
+  if (est->sigma_px > options_.max_step_sigma_px) return false;
+  if (!o.twist_covariance_valid || !est->covariance_valid) return true;  // nothing to fuse
+  const Eigen::Matrix<double, 6, Eigen::Dynamic> basis =
+      ProjectorRangeBasis(o.joint.WorldProjector());
+  const Eigen::Index k = basis.cols();
+  if (k == 0) return true;
+  const Eigen::MatrixXd p = basis.transpose() * predicted_covariance * basis;
+  const Eigen::MatrixXd m = basis.transpose() * est->covariance * basis;
+  const Eigen::MatrixXd s = p + m;
+  const Eigen::VectorXd d = basis.transpose() * (est->twist - predicted);
+  const Eigen::LDLT<Eigen::MatrixXd> ldlt(s);
+  if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return true;
+  const double chi2 = d.dot(ldlt.solve(d));
+  if (chi2 > ChiSquareQuantile(static_cast<int>(k), options_.filter_gate_confidence)) return false;
+  // Kalman update: x = x_pred + K d, P⁺ = (I − K) P with K = P S⁻¹.
+  const Eigen::MatrixXd gain = ldlt.solve(p).transpose();  // P S⁻¹ (P, S symmetric)
+  const Eigen::VectorXd x = basis.transpose() * predicted + gain * d;
+  Eigen::MatrixXd post = (Eigen::MatrixXd::Identity(k, k) - gain) * p;
+  post = 0.5 * (post + post.transpose());
+  est->twist = basis * x;
+  est->world_from_object = SE3d::Exp(est->twist) * o.world_from_object;
+  est->covariance = basis * post * basis.transpose();
+  return true;
+}
+
 bool ObjectTracker::Track(const FrameContext& ctx,
                           const ObjectDetectionInput& det,
                           TrackedObject* o) {
@@ -487,9 +541,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       if (match[k] >= 0) {
         const size_t kp = static_cast<size_t>(match[k]);
         if (!InsideDetection(det, f.keypoints.uv[kp], 2.0)) continue;
-        add_obs(k,
-                f.keypoints.uv[kp],
-                ObjectStereo(ctx, det, kp));
+        add_obs(k, f.keypoints.uv[kp], ObjectStereo(ctx, det, kp));
         continue;
       }
       if (o->points[k].patch.empty()) continue;
@@ -536,6 +588,26 @@ bool ObjectTracker::Track(const FrameContext& ctx,
     }
   }
   if (!est) return false;
+  const bool filtered = options_.acceleration_sigma_mps2 > 0.0 && !o->stationary && ctx.dt > 0.0;
+  if (filtered) {
+    const Matrix6d predicted_covariance =
+        o->twist_covariance_valid ? PredictedCovariance(ctx, *o) : Matrix6d::Zero();
+    if (!FilterStep(*o, initial, predicted_covariance, &*est)) {
+      ++stats_.rejected;
+      int coasted = 0;
+      for (auto it = o->history.rbegin(); it != o->history.rend() && it->observations.empty(); ++it)
+        ++coasted;
+      if (coasted >= options_.max_coast_frames) return false;  // lost; re-acquired later
+      // The prediction stands for this frame; no observation is kept, and the
+      // next frame searches the points from the prediction.
+      o->world_from_object = predicted;
+      o->twist_step = initial;
+      o->step_seconds = ctx.dt;
+      o->twist_covariance = predicted_covariance;
+      for (ObjectPoint& p : o->points) p.seen_last_frame = false;
+      return true;
+    }
+  }
 
   if (options_.stationary_after_frames > 0 && ctx.dt > 0.0) {
     const int dof = static_cast<int>(ProjectorRangeBasis(projector).cols());
@@ -562,6 +634,8 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   o->world_from_object = est->world_from_object;
   o->twist_step = est->twist;
   o->step_seconds = ctx.dt;
+  o->twist_covariance_valid = filtered && !o->stationary && est->covariance_valid;
+  o->twist_covariance = o->twist_covariance_valid ? est->covariance : Matrix6d::Zero();
   o->last_num_inliers = est->num_inliers;
   o->last_sigma_px = est->sigma_px;
   for (ObjectPoint& p : o->points) p.seen_last_frame = false;
@@ -657,6 +731,7 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
   o->joint = EffectiveJoint(det.joint);
   o->world_from_object = est->world_from_object;
   o->twist_step = est->twist / std::max(1.0, steps);
+  o->twist_covariance_valid = false;  // set by the next tracked step
   o->step_seconds = ctx.dt;
   o->last_num_inliers = est->num_inliers;
   o->last_sigma_px = est->sigma_px;

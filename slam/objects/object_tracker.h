@@ -82,6 +82,11 @@ struct TrackedObject {
   // duration in seconds (0 before the first step).
   geometry::Vector6d twist_step = geometry::Vector6d::Zero();
   double step_seconds = 0.0;
+  // Covariance of twist_step after the last tracked step (the constant-
+  // velocity filter's state, ObjectTrackerOptions::acceleration_sigma_mps2);
+  // invalid after creation, re-acquisition or while stationary.
+  geometry::Matrix6d twist_covariance = geometry::Matrix6d::Zero();
+  bool twist_covariance_valid = false;
   std::vector<ObjectPoint> points;
   int frames_lost = 0;
   int64_t last_seen_frame = 0;
@@ -153,7 +158,7 @@ struct ObjectTrackerOptions {
   // error −7 %, RPE_R and parked speed level, coverage −1 point (§11).
   double stereo_level0_half_px = 5.5;
   double min_point_spacing_px = 3.0;
-  double mask_erosion_px = 2.0;   // new points at least this far inside the mask
+  double mask_erosion_px = 2.0;  // new points at least this far inside the mask
   // Object depths from the mask only (masked_stereo.h): when the frame
   // carries the right image, every stereo depth the tracker uses for an
   // object (creation, new points, stereo observations) is measured again on
@@ -208,6 +213,24 @@ struct ObjectTrackerOptions {
   // driving / follow_braking / intersection / stationary_then_accelerating,
   // against 1.4 / 0.9 / 0.7 / 0.7 with 3 frames / 0.6 m/s.)
   int stationary_after_frames = 2;
+  // Constant-velocity filter on the twist (docs/objects.md §13). Each
+  // tracked step's estimate (with its Gauss–Newton covariance) is fused with
+  // the prediction, the previous step's twist whose covariance grows by the
+  // process noise of a random acceleration at the object's origin:
+  // acceleration_sigma_mps2 (linear) and angular_acceleration_sigma_radps2.
+  // A step whose innovation fails the χ² test at filter_gate_confidence, or
+  // whose residual scale (MAD) exceeds max_step_sigma_px, is a failed
+  // measurement (occlusion, flow on the occluder, too few points), not a
+  // car's motion: the object coasts on its prediction for that frame (no
+  // observation kept; the next frame searches its points from the
+  // prediction), at most max_coast_frames frames in a row, then it is lost
+  // and re-acquired. Not applied to stationary objects (their start has its
+  // own test, below). acceleration_sigma_mps2 = 0: off.
+  double acceleration_sigma_mps2 = 4.0;
+  double angular_acceleration_sigma_radps2 = 0.5;
+  double filter_gate_confidence = 0.999;
+  double max_step_sigma_px = 4.0;
+  int max_coast_frames = 3;
   double stationary_confidence = 0.99;
   double stationary_enter_speed_mps = 0.8;
   double stationary_leave_speed_mps = 1.2;
@@ -221,6 +244,7 @@ struct ObjectTrackerStats {
   int reidentified = 0;
   int lost = 0;
   int removed = 0;
+  int rejected = 0;  // steps that failed the filter's gate (coasted or lost)
 };
 
 class ObjectTracker {
@@ -255,6 +279,17 @@ class ObjectTracker {
  private:
   struct FrameContext;
   bool Track(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* object);
+  // The constant-velocity filter's update of a tracked step (see
+  // acceleration_sigma_mps2): fuses `estimate` with the prediction
+  // `predicted` in place and returns true, or returns false when the step
+  // fails the gate.
+  bool FilterStep(const TrackedObject& object,
+                  const geometry::Vector6d& predicted,
+                  const geometry::Matrix6d& predicted_covariance,
+                  TwistEstimate* estimate) const;
+  // Covariance of the constant-velocity prediction of `object`'s next step.
+  geometry::Matrix6d PredictedCovariance(const FrameContext& ctx,
+                                         const TrackedObject& object) const;
   bool Reacquire(const FrameContext& ctx,
                  const ObjectDetectionInput& det,
                  TrackedObject* object,

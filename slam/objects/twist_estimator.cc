@@ -3,6 +3,7 @@
 #include <ceres/ceres.h>
 #include <glog/logging.h>
 
+#include <Eigen/Cholesky>
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
@@ -212,6 +213,43 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
   }
   est.inlier_rms_px = est.num_inliers > 0 ? std::sqrt(sum / est.num_inliers) : 0.0;
   est.success = est.num_inliers >= options.min_inliers;
+  if (est.success && basis.cols() > 0) {
+    // Information Jᵀ W J / σ² in the basis, by central differences of the
+    // residuals (the step is tiny against any twist, exact to ~1e-8 relative).
+    const Eigen::Index k = basis.cols();
+    // The scale over every observation: the MAD is robust to the outliers,
+    // and the inliers alone are a sample truncated by the χ² gate.
+    sigma = mad(res, nullptr);
+    Eigen::MatrixXd info = Eigen::MatrixXd::Zero(k, k);
+    constexpr double kStep = 1e-6;
+    const double huber2 = options.huber_delta * options.huber_delta;
+    for (size_t j = 0; j < n; ++j) {
+      if (!active[j] || !res[j]) continue;
+      const int rows = observations[j].stereo() ? 3 : 2;
+      Eigen::MatrixXd jac(rows, k);
+      bool ok = true;
+      for (Eigen::Index i = 0; i < k && ok; ++i) {
+        const Vector6d step = kStep * basis.col(i);
+        const auto plus = TwistResidual(
+            camera, camera_from_world, world_from_object_previous, xi + step, observations[j]);
+        const auto minus = TwistResidual(
+            camera, camera_from_world, world_from_object_previous, xi - step, observations[j]);
+        ok = plus && minus;
+        if (ok) jac.col(i) = ((*plus - *minus) / (2.0 * kStep)).head(rows);
+      }
+      if (!ok) continue;
+      const double s2 = res[j]->head(rows).squaredNorm() / (sigma * sigma);
+      const double weight = s2 <= huber2 ? 1.0 : options.huber_delta / std::sqrt(s2);
+      info += weight * jac.transpose() * jac / (sigma * sigma);
+    }
+    Eigen::LDLT<Eigen::MatrixXd> ldlt(info);
+    const double scale = std::max(1.0, info.diagonal().maxCoeff());
+    if (ldlt.info() == Eigen::Success && ldlt.isPositive() &&
+        ldlt.vectorD().minCoeff() > 1e-12 * scale) {
+      est.covariance = basis * ldlt.solve(Eigen::MatrixXd::Identity(k, k)) * basis.transpose();
+      est.covariance_valid = true;
+    }
+  }
   return est;
 }
 

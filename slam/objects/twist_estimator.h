@@ -64,6 +64,13 @@ struct TwistEstimate {
   double inlier_rms_px = 0.0;  // RMS of the inliers' residual norms
   int rounds = 0;
   int iterations = 0;  // LM iterations, all rounds
+  // Gauss–Newton covariance of `twist` (world frame, one frame step):
+  // B (Jᵀ W J / σ²)⁻¹ Bᵀ over the inliers, with B the basis of range(Π), J the
+  // residuals' Jacobian in that basis, W the Huber weights and σ the MAD
+  // scale. Supported on range(Π). Valid only when `covariance_valid` (at least
+  // as many independent constraints as the joint has degrees of freedom).
+  geometry::Matrix6d covariance = geometry::Matrix6d::Zero();
+  bool covariance_valid = false;
 };
 
 // Basis (6 x k, orthonormal columns) of range(Π); k = rank(Π).

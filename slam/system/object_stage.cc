@@ -425,9 +425,11 @@ void WriteTrackedObject(const objects::TrackedObject& o, BinaryWriter* w) {
   w->Pod<uint8_t>(o.stationary);
   w->Pod<int32_t>(o.last_num_inliers);
   w->Pod(o.last_sigma_px);
+  w->Pod<uint8_t>(o.twist_covariance_valid);  // format 5
+  for (int i = 0; i < 36; ++i) w->Pod<double>(o.twist_covariance.data()[i]);
 }
 
-objects::TrackedObject ReadTrackedObject(BinaryReader* r) {
+objects::TrackedObject ReadTrackedObject(BinaryReader* r, uint32_t version) {
   objects::TrackedObject o;
   o.id = r->Pod<int64_t>();
   o.cluster_id = r->Pod<int64_t>();
@@ -470,6 +472,11 @@ objects::TrackedObject ReadTrackedObject(BinaryReader* r) {
   o.stationary = r->Pod<uint8_t>() != 0;
   o.last_num_inliers = r->Pod<int32_t>();
   o.last_sigma_px = r->Pod<double>();
+  if (version >= 5) {
+    o.twist_covariance_valid = r->Pod<uint8_t>() != 0;
+    for (int i = 0; i < 36; ++i) o.twist_covariance.data()[i] = r->Pod<double>();
+    if (!o.twist_covariance.allFinite()) r->Fail();
+  }
   return o;
 }
 
@@ -596,7 +603,7 @@ void ObjectStage::Write(BinaryWriter* w) const {
   }
 }
 
-absl::Status ObjectStage::Read(BinaryReader* r) {
+absl::Status ObjectStage::Read(BinaryReader* r, uint32_t version) {
   auto corrupt = [](const std::string& what) {
     return absl::DataLossError("state file has corrupt object state: " + what);
   };
@@ -643,7 +650,7 @@ absl::Status ObjectStage::Read(BinaryReader* r) {
   objects::ObjectTracker::State ts;
   const uint64_t no = r->Count(200);
   for (uint64_t k = 0; k < no && r->ok(); ++k) {
-    objects::TrackedObject o = ReadTrackedObject(r);
+    objects::TrackedObject o = ReadTrackedObject(r, version);
     if (!r->ok() || !ts.objects.emplace(o.id, std::move(o)).second) return corrupt("objects");
   }
   ts.next_object_id = r->Pod<int64_t>();

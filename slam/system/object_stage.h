@@ -100,8 +100,9 @@ class ObjectStage {
   // the RANSAC generator, the BA window); the configuration is the caller's.
   // Read() expects a stage freshly built from the same configuration and
   // returns DataLoss (never crashes) on truncated or inconsistent data.
+  // `version` is the state file's format version (>= 4).
   void Write(system_io::BinaryWriter* w) const;
-  absl::Status Read(system_io::BinaryReader* r);
+  absl::Status Read(system_io::BinaryReader* r, uint32_t version);
 
  private:
   struct PlaneState {

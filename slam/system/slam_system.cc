@@ -34,7 +34,10 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // 4: + the object stage (clusters, planes, tracked objects, axis joints, RANSAC
 // generator, BA window: ObjectStage::Write). Older files still load; their
 // objects restart after the resume.
-constexpr uint32_t kFormatVersion = 4;
+// 5: + each tracked object's twist covariance (the constant-velocity filter,
+// ObjectTrackerOptions::acceleration_sigma_mps2). Version 4 files still load
+// (the filter restarts at each object's next step).
+constexpr uint32_t kFormatVersion = 5;
 
 tracking::TrackerOptions TrackerOptionsFrom(const SlamOptions& o) {
   tracking::TrackerOptions t;
@@ -821,7 +824,7 @@ absl::Status SlamSystemImpl::Restore(system_io::BinaryReader* r, uint32_t versio
       return absl::DataLossError("state file: object state does not match the configuration");
     }
     if (r->ok() && has_objects) {
-      if (absl::Status s = objects_->Read(r); !s.ok()) return s;
+      if (absl::Status s = objects_->Read(r, version); !s.ok()) return s;
     }
   }
   char trailer[8];

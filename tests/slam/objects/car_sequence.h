@@ -50,6 +50,10 @@ class CarSequence {
   // Added to every vector of the dense flow: a tracker that chains flow from
   // frame to frame drifts by this much per frame.
   void set_flow_bias(const Eigen::Vector2d& bias_px) { flow_bias_ = bias_px; }
+  // A failed measurement: until reset to the identity, the keypoints, the
+  // flow and the box show the car at world_offset · (true pose), as when the
+  // flow and matches lock onto an occluder; the truth is unchanged.
+  void set_measurement_glitch(const SE3d& world_offset) { glitch_ = world_offset; }
 
   // Frame i (advances the truth by one step after frame 0).
   ObjectFrameInput Next(int64_t cluster_id, bool detected) {
@@ -62,7 +66,7 @@ class CarSequence {
     f.left = cv::Mat(cam_.height, cam_.width, CV_8UC1, cv::Scalar(100));
     f.flow = cv::Mat(cam_.height, cam_.width, CV_32FC2, cv::Scalar(0, 0));
     std::normal_distribution<double> g(0.0, noise_ > 0 ? noise_ : 1.0);
-    const SE3d camera_from_object = f.camera_from_world * world_from_object_;
+    const SE3d camera_from_object = f.camera_from_world * glitch_ * world_from_object_;
     double x0 = 1e9, y0 = 1e9, x1 = -1e9, y1 = -1e9;
     f.keypoints.descriptors = cv::Mat(0, 32, CV_8UC1);
     std::vector<Eigen::Vector2d> true_uv(points_.size());
@@ -135,6 +139,7 @@ class CarSequence {
   std::vector<cv::Mat> descriptors_;
   std::vector<Eigen::Vector2d> prev_uv_;
   Eigen::Vector2d flow_bias_ = Eigen::Vector2d::Zero();
+  SE3d glitch_;
   int64_t index_ = 0;
 };
 

@@ -157,6 +157,116 @@ TEST(ObjectTracker, ParkedCarIsHeldStationaryAndAMovingOneNeverIs) {
   }
 }
 
+// Speed error of a tracked car at frame i (true speed of its origin).
+double SpeedError(const CarSequence& seq, const ObjectResult& r) {
+  const double true_speed =
+      (seq.step().head<3>() + seq.step().tail<3>().cross(seq.world_from_object().translation()))
+          .norm() /
+      0.1;
+  return std::abs(r.speed_mps - true_speed);
+}
+
+// A measurement that shows the car 1 m to the side and turned by 6° for one
+// frame (flow and matches on an occluder) fails the constant-velocity
+// filter's gate: the car coasts on its prediction and is tracked on from
+// there. Without the filter the failed measurement is taken as the car's pose.
+TEST(ObjectTracker, AFailedMeasurementCoastsOnThePrediction) {
+  for (bool filtered : {true, false}) {
+    CarSequence seq(0.3, 31);
+    ObjectTrackerOptions options;
+    if (!filtered) options.acceleration_sigma_mps2 = 0.0;
+    ObjectTracker tracker(seq.camera(), options);
+    const SE3d gt0 = seq.world_from_object();
+    SE3d est0;
+    double glitch_error = 0.0, after_error = 0.0;
+    int rejected = 0;
+    for (int i = 0; i < 16; ++i) {
+      seq.set_measurement_glitch(
+          i == 8 ? SE3d(geometry::SO3d::Exp(Eigen::Vector3d(0, 0.1, 0)), Eigen::Vector3d(1, 0, 0))
+                 : SE3d());
+      const auto results = tracker.Process(seq.Next(7, true));
+      ASSERT_TRUE(results.ok());
+      ASSERT_EQ(results->size(), 1u);
+      const ObjectResult& r = (*results)[0];
+      rejected += tracker.last_stats().rejected;
+      if (i == 0) {
+        est0 = r.world_from_object;
+        continue;
+      }
+      EXPECT_EQ(r.state, ObjectState::kTracked) << "frame " << i;
+      const double e = TranslationError(r.world_from_object * est0.Inverse(),
+                                        seq.world_from_object() * gt0.Inverse());
+      if (i == 8) glitch_error = e;
+      if (i > 8) after_error = std::max(after_error, e);
+    }
+    std::printf("[glitch, filter %s] error at the glitch %.3f m, after %.3f m, %d rejected\n",
+                filtered ? "on" : "off",
+                glitch_error,
+                after_error,
+                rejected);
+    if (filtered) {
+      EXPECT_EQ(rejected, 1);
+      EXPECT_LT(glitch_error, 0.3);
+      EXPECT_LT(after_error, 0.35);
+    } else {
+      EXPECT_EQ(rejected, 0);
+      EXPECT_GT(glitch_error, 1.0);
+    }
+  }
+}
+
+// A car 20 m away under 0.7 px keypoint noise: the filter lowers the
+// frame-to-frame jitter of the speed, and still follows a car braking at
+// 4 m/s² (the error of the object's structure, which no filter removes, makes
+// the speed error itself fall less).
+TEST(ObjectTracker, ConstantVelocityFilterSmoothsAndFollowsBraking) {
+  double jitter[2] = {0.0, 0.0}, rms[2] = {0.0, 0.0}, braking[2] = {0.0, 0.0};
+  for (int filtered : {1, 0}) {
+    CarSequence seq(0.7, 41, 3.0, 60, 20.0);
+    ObjectTrackerOptions options;
+    if (!filtered) options.acceleration_sigma_mps2 = 0.0;
+    ObjectTracker tracker(seq.camera(), options);
+    const Vector6d cruise = seq.step();  // 8 m/s
+    double sum2 = 0.0, jitter2 = 0.0, prev_speed = -1.0;
+    int n = 0, nj = 0;
+    for (int i = 0; i < 40; ++i) {
+      // Cruising, then braking at 4 m/s² from frame 20 (0.4 m/s per frame).
+      if (i >= 20) seq.set_step(cruise * std::max(0.0, 1.0 - 0.05 * (i - 19)));
+      const auto results = tracker.Process(seq.Next(8, true));
+      ASSERT_TRUE(results.ok());
+      ASSERT_EQ(results->size(), 1u);
+      const ObjectResult& r = (*results)[0];
+      if (i > 0) {
+        EXPECT_EQ(r.state, ObjectState::kTracked) << "frame " << i;
+      }
+      if (i < 3) continue;  // the filter's start
+      const double e = SpeedError(seq, r);
+      sum2 += e * e;
+      ++n;
+      if (i >= 22 && i < 38) braking[filtered] = std::max(braking[filtered], e);
+      // Jitter: change of the speed error from frame to frame (the true speed
+      // changes smoothly).
+      if (prev_speed >= 0.0) {
+        jitter2 += (e - prev_speed) * (e - prev_speed);
+        ++nj;
+      }
+      prev_speed = e;
+    }
+    rms[filtered] = std::sqrt(sum2 / n);
+    jitter[filtered] = std::sqrt(jitter2 / nj);
+    std::printf("[filter %s] speed error RMS %.3f m/s, jitter %.3f m/s, max while braking %.3f\n",
+                filtered ? "on" : "off",
+                rms[filtered],
+                jitter[filtered],
+                braking[filtered]);
+  }
+  // Measured: jitter 0.22 / 1.20 m/s, RMS 0.43 / 1.29 m/s, braking 0.76 /
+  // 2.46 m/s (on / off).
+  EXPECT_LT(jitter[1], 0.4 * jitter[0]);
+  EXPECT_LT(rms[1], 0.6 * rms[0]);
+  EXPECT_LT(braking[1], braking[0]);
+}
+
 TEST(ObjectTracker, FarObjectIsCreatedOnlyOnceItsStereoDepthIsUsable) {
   // 50 m ahead: depth noise 50² · 0.3 / bf ≈ 1.9 m > 0.8 m.
   CarSequence far(0.0, 23, 3.0, 60, 50.0);

@@ -368,8 +368,9 @@ TEST(SlamSystem, LoadRejectsTruncatedObjectState) {
 }
 
 // A format-3 file (written before the objects were saved) still loads. Without
-// the object stage a format-4 file is a format-3 file plus one flag byte
-// before the trailer, so one is made from the other.
+// the object stage a format-5 file is a format-4 file (format 5 only adds to
+// the tracked objects), and a format-3 file plus one flag byte before the
+// trailer, so one is made from the other.
 TEST(SlamSystem, LoadsFormatVersion3) {
   const Clip& clip = SmallClip();
   SessionConfig config = clip.config;
@@ -383,8 +384,20 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   uint32_t version = 0;
   std::memcpy(&version, &data[8], sizeof(version));
-  ASSERT_EQ(version, 4u);
+  ASSERT_EQ(version, 5u);
   ASSERT_EQ(data[data.size() - 9], '\0');  // "no object stage"
+  {
+    std::string v4 = data;
+    version = 4;
+    std::memcpy(&v4[8], &version, sizeof(version));
+    const std::string path4 = TempPath("state_v4_declared");
+    {
+      std::ofstream out(path4, std::ios::binary);
+      out.write(v4.data(), static_cast<std::streamsize>(v4.size()));
+    }
+    EXPECT_TRUE(SlamSystem::Load(path4).ok());
+    std::remove(path4.c_str());
+  }
   std::string v3 = data.substr(0, data.size() - 9) + data.substr(data.size() - 8);
   version = 3;
   std::memcpy(&v3[8], &version, sizeof(version));
