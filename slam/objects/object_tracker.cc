@@ -146,6 +146,9 @@ absl::Status ObjectTrackerOptions::Validate() const {
     return absl::InvalidArgumentError(
         "object tracker needs max_depth_m > 0, max_depth_spread_m > 0, max_frames_lost >= 0");
   }
+  if (!(max_track_depth_sigma_m >= 0.0)) {
+    return absl::InvalidArgumentError("object tracker needs max_track_depth_sigma_m >= 0");
+  }
   if (!(acceleration_sigma_mps2 >= 0.0) || !(angular_acceleration_sigma_radps2 > 0.0) ||
       !(max_step_sigma_px > 0.0) || !(filter_gate_confidence > 0.0) ||
       !(filter_gate_confidence < 1.0) || max_coast_frames < 0) {
@@ -375,6 +378,12 @@ bool ObjectTracker::Create(const FrameContext& ctx,
   return true;
 }
 
+bool ObjectTracker::BeyondTrackingRange(const SE3d& camera_from_object) const {
+  if (!(options_.max_track_depth_sigma_m > 0.0)) return false;
+  const double z = camera_from_object.translation().z();
+  return z * z * options_.disparity_sigma_px / camera_.bf() > options_.max_track_depth_sigma_m;
+}
+
 Matrix6d ObjectTracker::PredictedCovariance(const FrameContext& ctx, const TrackedObject& o) const {
   // Random acceleration over the step, as a change of the per-step twist at
   // the object's origin c: δv = a·dt², δω = α·dt²; moved to the world
@@ -431,6 +440,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   if (o->step_seconds > 0.0 && ctx.dt > 0.0) initial *= ctx.dt / o->step_seconds;
   const SE3d predicted = SE3d::Exp(o->joint.WorldProjector() * initial) * o->world_from_object;
   const SE3d camera_from_predicted = f.camera_from_world * predicted;
+  if (BeyondTrackingRange(camera_from_predicted)) return false;
 
   std::vector<size_t> flow_idx;
   std::vector<Eigen::Vector2d> prev_uv, pred_uv;
@@ -668,6 +678,7 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
   const Vector6d initial = projector * (steps * o->twist_step);
   const SE3d predicted = SE3d::Exp(initial) * o->world_from_object;
   const SE3d camera_from_object = f.camera_from_world * predicted;
+  if (BeyondTrackingRange(camera_from_object)) return false;
   // Predicted box from the projected points.
   double x0 = 1e18, y0 = 1e18, x1 = -1e18, y1 = -1e18;
   int in_front = 0;

@@ -147,6 +147,14 @@ struct ObjectTrackerOptions {
   // a car shows >= 2000 mask pixels (`driving`: 0.881; 0.5 m: 0.837 for
   // somewhat better accuracy). <= 0: no limit.
   double max_create_depth_sigma_m = 0.8;
+  // An object is tracked only while the depth noise at its origin,
+  // z² σ_d / (f b) for level-0 stereo, is at most this: 1.2 m, 1.5× the
+  // creation bound, is ≈ 40 m on KITTI's rig. Beyond, a car's steps are not
+  // measured well enough to follow it: on the rendered scenes a car receding
+  // from 35 to 45 m drifted by 4 m along the rays (docs/objects.md §14), in
+  // frames that show under 2000 mask pixels. The object is lost instead, and
+  // re-identified or created again if it comes closer. 0: no limit.
+  double max_track_depth_sigma_m = 1.2;
   double disparity_sigma_px = 0.3;  // on level 0
   // The depth noise above is the median over the points of z² σ_d s / (f b),
   // with s the scale of each keypoint's pyramid level: the stereo matcher
@@ -287,6 +295,9 @@ class ObjectTracker {
                   const geometry::Vector6d& predicted,
                   const geometry::Matrix6d& predicted_covariance,
                   TwistEstimate* estimate) const;
+  // Whether an object at `camera_from_object` is too far to track
+  // (max_track_depth_sigma_m).
+  bool BeyondTrackingRange(const geometry::SE3d& camera_from_object) const;
   // Covariance of the constant-velocity prediction of `object`'s next step.
   geometry::Matrix6d PredictedCovariance(const FrameContext& ctx,
                                          const TrackedObject& object) const;

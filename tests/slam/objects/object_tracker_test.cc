@@ -289,6 +289,41 @@ TEST(ObjectTracker, FarObjectIsCreatedOnlyOnceItsStereoDepthIsUsable) {
   EXPECT_EQ(c->size(), 1u);
 }
 
+// A car receding from 31 m at 1 m per frame is tracked while the depth noise
+// at its origin is at most max_track_depth_sigma_m (1.2 m: 39.5 m on this
+// rig), then lost; without the limit it is tracked on.
+TEST(ObjectTracker, AnObjectRecedingBeyondTheTrackingRangeIsLost) {
+  for (bool limited : {true, false}) {
+    CarSequence seq(0.3, 25, 3.0, 60, 31.0);
+    Vector6d step = Vector6d::Zero();
+    step(2) = 1.6;  // world z, along the road; the camera drives 0.6 m/frame
+    seq.set_step(step);
+    ObjectTrackerOptions options;
+    if (!limited) options.max_track_depth_sigma_m = 0.0;
+    ObjectTracker tracker(seq.camera(), options);
+    const double max_depth =
+        std::sqrt(options.max_track_depth_sigma_m * seq.camera().bf() / options.disparity_sigma_px);
+    int lost_at = -1;
+    for (int i = 0; i < 16; ++i) {
+      const auto results = tracker.Process(seq.Next(9, true));
+      ASSERT_TRUE(results.ok());
+      ASSERT_EQ(results->size(), 1u) << "frame " << i;
+      const double depth = seq.world_from_object().translation().z() - 0.6 * i;
+      if ((*results)[0].state == ObjectState::kLost) {
+        if (lost_at < 0) lost_at = i;
+        EXPECT_GT(depth, max_depth - 1.5) << "frame " << i;
+      } else if (limited) {
+        EXPECT_LT(depth, max_depth + 1.5) << "frame " << i;
+      }
+    }
+    if (limited) {
+      EXPECT_GT(lost_at, 5);
+    } else {
+      EXPECT_EQ(lost_at, -1);
+    }
+  }
+}
+
 TEST(ObjectTracker, CreationDepthNoiseCountsTheKeypointsPyramidLevels) {
   // 28 m ahead: with level-0 stereo the depth noise is 28² · 0.3 / bf ≈ 0.6 m
   // (created); with every keypoint refined on level 3 (block 1.2³ times level
