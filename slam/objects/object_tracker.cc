@@ -810,7 +810,8 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
     }
     handled.insert(o->id);
     bool ok;
-    if (o->frames_lost == 0 && has_prev_) {
+    const bool reacquiring = !(o->frames_lost == 0 && has_prev_);
+    if (!reacquiring) {
       o->joint = EffectiveJoint(det.joint);
       ok = Track(ctx, det, o);
     } else {
@@ -828,14 +829,20 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
       RecordPose(ctx, o);
     } else {
       handled.erase(o->id);  // aged below like an undetected object
+      // A lost object that does not re-acquire the detection of its cluster
+      // leaves it to the other lost objects and to creation: cluster ids
+      // follow the segmentation's association, which can hand an object's
+      // cluster to another instance after an occlusion.
+      if (reacquiring) unmatched.push_back(&det);
     }
   }
   for (const ObjectDetectionInput* det : unmatched) {
     // Re-identification of a recently lost object of the same class.
     TrackedObject* best = nullptr;
     for (auto& [id, obj] : objects_) {
-      if (handled.count(id) > 0 || obj.class_id != det->class_id || obj.state != ObjectState::kLost)
-        continue;
+      if (handled.count(id) > 0 || obj.class_id != det->class_id ||
+          obj.state != ObjectState::kLost || obj.cluster_id == det->cluster_id)
+        continue;  // (the cluster's own object was tried above)
       double score = 0.0;
       if (Reacquire(ctx, *det, &obj, &score)) {
         best = &obj;

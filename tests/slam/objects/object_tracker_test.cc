@@ -415,6 +415,51 @@ TEST(ObjectTracker, LostThenReidentifiedUnderANewClusterId) {
   EXPECT_EQ((*next)[0].state, ObjectState::kTracked);
 }
 
+// Two sequences seen by the same camera in one frame (their camera poses
+// agree: both drive 0.6 m per frame).
+ObjectFrameInput Merge(ObjectFrameInput a, const ObjectFrameInput& b) {
+  a.keypoints.uv.insert(a.keypoints.uv.end(), b.keypoints.uv.begin(), b.keypoints.uv.end());
+  a.keypoints.u_right.insert(
+      a.keypoints.u_right.end(), b.keypoints.u_right.begin(), b.keypoints.u_right.end());
+  a.keypoints.descriptors.push_back(b.keypoints.descriptors);
+  a.flow += b.flow;  // each is zero away from its own points
+  a.detections.insert(a.detections.end(), b.detections.begin(), b.detections.end());
+  return a;
+}
+
+// After an occlusion the cluster association can hand a car's detection the
+// cluster id of another lost object (here: parked car B's). B fails to
+// re-acquire it; the detection must then go to the other lost objects, and
+// car A is re-identified instead of being dropped for that frame.
+TEST(ObjectTracker, ADetectionUnderAnotherLostObjectsClusterIsStillReidentified) {
+  CarSequence a(0.0, 3);
+  CarSequence b(0.0, 5, -4.0, 60, 20.0);
+  b.set_step(Vector6d::Zero());
+  ObjectTracker tracker(a.camera(), ObjectTrackerOptions{});
+  int64_t id_a = -1, id_b = -1;
+  for (int i = 0; i < 5; ++i) {
+    const auto r = tracker.Process(Merge(a.Next(11, true), b.Next(42, true)));
+    ASSERT_TRUE(r.ok());
+    ASSERT_EQ(r->size(), 2u);
+    for (const ObjectResult& o : *r) (o.instance_id == 11 ? id_a : id_b) = o.id;
+  }
+  ASSERT_GE(id_a, 0);
+  ASSERT_GE(id_b, 0);
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_TRUE(tracker.Process(Merge(a.Next(11, false), b.Next(42, false))).ok());
+  }
+  // Car A comes back under B's cluster id; B stays hidden.
+  const auto back = tracker.Process(Merge(a.Next(42, true), b.Next(42, false)));
+  ASSERT_TRUE(back.ok());
+  ASSERT_EQ(back->size(), 2u);
+  for (const ObjectResult& o : *back) {
+    EXPECT_EQ(o.state, o.id == id_a ? ObjectState::kTracked : ObjectState::kLost) << o.id;
+  }
+  EXPECT_EQ(tracker.last_stats().reidentified, 1);
+  EXPECT_EQ(tracker.last_stats().created, 0);
+  EXPECT_EQ(tracker.objects().at(id_a).cluster_id, 42);
+}
+
 TEST(ObjectTracker, RemovedAfterTheReidentificationWindow) {
   CarSequence seq(0.0, 4);
   ObjectTrackerOptions options;
