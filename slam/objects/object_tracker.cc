@@ -799,6 +799,13 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
 
   std::unordered_set<int64_t> handled;
   std::vector<const ObjectDetectionInput*> unmatched;
+  // A cluster taken over by a re-identified or new object no longer leads
+  // to the lost object that held it (it can still be re-identified).
+  auto release_cluster = [&](int64_t cluster_id) {
+    for (auto& [id, obj] : objects_) {
+      if (obj.cluster_id == cluster_id) obj.cluster_id = kNoCluster;
+    }
+  };
   for (const ObjectDetectionInput& det : frame.detections) {
     TrackedObject* o = nullptr;
     for (auto& [id, obj] : objects_) {
@@ -850,6 +857,7 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
       }
     }
     if (best != nullptr) {
+      release_cluster(det->cluster_id);
       best->cluster_id = det->cluster_id;
       best->instance_id = det->instance_id;
       best->state = ObjectState::kTracked;
@@ -864,6 +872,7 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
     TrackedObject o;
     o.id = next_object_id_;
     if (!Create(ctx, *det, &o)) continue;
+    release_cluster(det->cluster_id);
     ++next_object_id_;
     handled.insert(o.id);
     ++stats_.created;

@@ -70,6 +70,10 @@ struct ObjectPoseSample {
   std::vector<ObjectPointObservation> observations;
 };
 
+// TrackedObject::cluster_id of a lost object whose cluster was taken over by
+// another object (cluster ids are >= 1).
+inline constexpr int64_t kNoCluster = -1;
+
 struct TrackedObject {
   int64_t id = 0;          // stable object id (own counter per tracker)
   int64_t cluster_id = 0;  // cluster currently associated (changes on re-identification)

@@ -458,6 +458,18 @@ TEST(ObjectTracker, ADetectionUnderAnotherLostObjectsClusterIsStillReidentified)
   EXPECT_EQ(tracker.last_stats().reidentified, 1);
   EXPECT_EQ(tracker.last_stats().created, 0);
   EXPECT_EQ(tracker.objects().at(id_a).cluster_id, 42);
+  // The cluster now belongs to A: the next frames track A, and neither hand
+  // the detection to B nor create a duplicate.
+  for (int i = 0; i < 2; ++i) {
+    const auto next = tracker.Process(Merge(a.Next(42, true), b.Next(42, false)));
+    ASSERT_TRUE(next.ok());
+    ASSERT_EQ(next->size(), 2u);
+    for (const ObjectResult& o : *next) {
+      EXPECT_EQ(o.state, o.id == id_a ? ObjectState::kTracked : ObjectState::kLost) << o.id;
+    }
+    EXPECT_EQ(tracker.last_stats().created, 0);
+    EXPECT_EQ(tracker.last_stats().tracked, 1);
+  }
 }
 
 TEST(ObjectTracker, RemovedAfterTheReidentificationWindow) {
