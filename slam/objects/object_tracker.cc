@@ -329,7 +329,7 @@ bool ObjectTracker::Create(const FrameContext& ctx,
     const double s = kps.stereo_support_px.empty()
                          ? 1.0
                          : kps.stereo_support_px[idx[j]] / options_.stereo_level0_half_px;
-    sigmas.push_back(p_cam[j].z() * p_cam[j].z() * options_.disparity_sigma_px * s / camera_.bf());
+    sigmas.push_back(DepthNoise(p_cam[j].z(), s));
   }
   if (options_.max_create_depth_sigma_m > 0.0 && Median(sigmas) > options_.max_create_depth_sigma_m)
     return false;
@@ -378,10 +378,13 @@ bool ObjectTracker::Create(const FrameContext& ctx,
   return true;
 }
 
+double ObjectTracker::DepthNoise(double depth, double level_scale) const {
+  return depth * depth * options_.disparity_sigma_px * level_scale / camera_.bf();
+}
+
 bool ObjectTracker::BeyondTrackingRange(const SE3d& camera_from_object) const {
-  if (!(options_.max_track_depth_sigma_m > 0.0)) return false;
-  const double z = camera_from_object.translation().z();
-  return z * z * options_.disparity_sigma_px / camera_.bf() > options_.max_track_depth_sigma_m;
+  return options_.max_track_depth_sigma_m > 0.0 &&
+         DepthNoise(camera_from_object.translation().z(), 1.0) > options_.max_track_depth_sigma_m;
 }
 
 Matrix6d ObjectTracker::PredictedCovariance(const FrameContext& ctx, const TrackedObject& o) const {

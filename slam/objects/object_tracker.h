@@ -299,6 +299,9 @@ class ObjectTracker {
                   const geometry::Vector6d& predicted,
                   const geometry::Matrix6d& predicted_covariance,
                   TwistEstimate* estimate) const;
+  // Stereo depth noise z² σ_d s / (f b) of a point at `depth`, s the scale of
+  // its keypoint's pyramid level (1: level 0).
+  double DepthNoise(double depth, double level_scale) const;
   // Whether an object at `camera_from_object` is too far to track
   // (max_track_depth_sigma_m).
   bool BeyondTrackingRange(const geometry::SE3d& camera_from_object) const;

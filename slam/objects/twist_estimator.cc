@@ -214,38 +214,48 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
   est.inlier_rms_px = est.num_inliers > 0 ? std::sqrt(sum / est.num_inliers) : 0.0;
   est.success = est.num_inliers >= options.min_inliers;
   if (est.success && basis.cols() > 0) {
-    // Information Jᵀ W J / σ² in the basis, by central differences of the
-    // residuals (the step is tiny against any twist, exact to ~1e-8 relative).
+    // Information Jᵀ W J / σ² in the basis, with the cost's analytic Jacobian
+    // (residuals unscaled: sqrt_information 1). The scale is the MAD over
+    // every observation: it is robust to the outliers, and the inliers alone
+    // are a sample truncated by the χ² gate.
     const Eigen::Index k = basis.cols();
-    // The scale over every observation: the MAD is robust to the outliers,
-    // and the inliers alone are a sample truncated by the χ² gate.
-    sigma = mad(res, nullptr);
-    Eigen::MatrixXd info = Eigen::MatrixXd::Zero(k, k);
-    constexpr double kStep = 1e-6;
+    const double scale_all = mad(res, nullptr);
     const double huber2 = options.huber_delta * options.huber_delta;
+    Eigen::MatrixXd info = Eigen::MatrixXd::Zero(k, k);
     for (size_t j = 0; j < n; ++j) {
-      if (!active[j] || !res[j]) continue;
-      const int rows = observations[j].stereo() ? 3 : 2;
-      Eigen::MatrixXd jac(rows, k);
-      bool ok = true;
-      for (Eigen::Index i = 0; i < k && ok; ++i) {
-        const Vector6d step = kStep * basis.col(i);
-        const auto plus = TwistResidual(
-            camera, camera_from_world, world_from_object_previous, xi + step, observations[j]);
-        const auto minus = TwistResidual(
-            camera, camera_from_world, world_from_object_previous, xi - step, observations[j]);
-        ok = plus && minus;
-        if (ok) jac.col(i) = ((*plus - *minus) / (2.0 * kStep)).head(rows);
-      }
-      if (!ok) continue;
-      const double s2 = res[j]->head(rows).squaredNorm() / (sigma * sigma);
+      if (!active[j]) continue;
+      const bool stereo = observations[j].stereo();
+      const std::unique_ptr<ceres::CostFunction> cost(stereo
+                                                          ? MakeCost<3>(camera,
+                                                                        camera_from_world,
+                                                                        world_from_object_previous,
+                                                                        world_projector,
+                                                                        observations[j],
+                                                                        1.0,
+                                                                        false)
+                                                          : MakeCost<2>(camera,
+                                                                        camera_from_world,
+                                                                        world_from_object_previous,
+                                                                        world_projector,
+                                                                        observations[j],
+                                                                        1.0,
+                                                                        false));
+      const int rows = stereo ? 3 : 2;
+      double r[3];
+      Eigen::Matrix<double, 3, 6, Eigen::RowMajor> jac6;
+      double* jacobians[1] = {jac6.data()};
+      const double* parameters[1] = {xi.data()};
+      if (!cost->Evaluate(parameters, r, jacobians)) continue;
+      const Eigen::MatrixXd jac = jac6.topRows(rows) * basis;
+      const double s2 =
+          Eigen::Map<const Eigen::VectorXd>(r, rows).squaredNorm() / (scale_all * scale_all);
       const double weight = s2 <= huber2 ? 1.0 : options.huber_delta / std::sqrt(s2);
-      info += weight * jac.transpose() * jac / (sigma * sigma);
+      info += weight * jac.transpose() * jac / (scale_all * scale_all);
     }
     Eigen::LDLT<Eigen::MatrixXd> ldlt(info);
-    const double scale = std::max(1.0, info.diagonal().maxCoeff());
+    const double info_scale = std::max(1.0, info.diagonal().maxCoeff());
     if (ldlt.info() == Eigen::Success && ldlt.isPositive() &&
-        ldlt.vectorD().minCoeff() > 1e-12 * scale) {
+        ldlt.vectorD().minCoeff() > 1e-12 * info_scale) {
       est.covariance = basis * ldlt.solve(Eigen::MatrixXd::Identity(k, k)) * basis.transpose();
       est.covariance_valid = true;
     }
