@@ -41,6 +41,19 @@ CarScene MakeCarScene(int num_points, double depth, uint64_t seed) {
   return s;
 }
 
+// The twist of the scene's car from `obs`, starting from zero.
+absl::StatusOr<TwistEstimate> EstimateScene(const CarScene& s,
+                                            const std::vector<TwistObservation>& obs,
+                                            const TwistEstimatorOptions& options = {}) {
+  return EstimateObjectTwist(s.cam,
+                             s.camera_from_world,
+                             s.world_from_object_prev,
+                             s.projector,
+                             obs,
+                             Vector6d::Zero(),
+                             options);
+}
+
 TEST(TwistEstimator, ProjectorBasisAndMad) {
   const SE3d t = RoadJointFrame(Eigen::Vector3d(1, 0, 10));
   const Matrix6d pi = PlanarProjector(t);
@@ -68,13 +81,7 @@ TEST_P(CarTwist, RecoversKnownTwistExactlyWithoutNoise) {
   for (bool autodiff : {false, true}) {
     TwistEstimatorOptions options;
     options.use_autodiff = autodiff;
-    const auto est = EstimateObjectTwist(s.cam,
-                                         s.camera_from_world,
-                                         s.world_from_object_prev,
-                                         s.projector,
-                                         obs,
-                                         Vector6d::Zero(),
-                                         options);
+    const auto est = EstimateScene(s, obs, options);
     ASSERT_TRUE(est.ok()) << est.status();
     ASSERT_TRUE(est->success);
     EXPECT_LT((est->twist - s.true_twist).norm(), 1e-7) << est->twist.transpose();
@@ -89,13 +96,7 @@ TEST_P(CarTwist, WithinToleranceUnderPixelNoise) {
   std::mt19937_64 rng(5);
   const auto obs = Observe(
       s.cam, s.camera_from_world, s.world_from_object_true, s.points, GetParam(), 0.7, &rng);
-  const auto est = EstimateObjectTwist(s.cam,
-                                       s.camera_from_world,
-                                       s.world_from_object_prev,
-                                       s.projector,
-                                       obs,
-                                       Vector6d::Zero(),
-                                       TwistEstimatorOptions{});
+  const auto est = EstimateScene(s, obs);
   ASSERT_TRUE(est.ok() && est->success);
   EXPECT_LT(TranslationError(est->world_from_object, s.world_from_object_true), 0.05);
   EXPECT_LT(RotationErrorDeg(est->world_from_object, s.world_from_object_true), 0.3);
@@ -116,13 +117,7 @@ TEST_P(CarTwist, RejectsTwentyPercentOutliers) {
     if (obs[k].stereo()) obs[k].u_right = obs[k].uv.x() - 30.0;  // wrong disparity too
     is_outlier[k] = true;
   }
-  const auto est = EstimateObjectTwist(s.cam,
-                                       s.camera_from_world,
-                                       s.world_from_object_prev,
-                                       s.projector,
-                                       obs,
-                                       Vector6d::Zero(),
-                                       TwistEstimatorOptions{});
+  const auto est = EstimateScene(s, obs);
   ASSERT_TRUE(est.ok() && est->success);
   EXPECT_LT(TranslationError(est->world_from_object, s.world_from_object_true), 0.05);
   EXPECT_LT(RotationErrorDeg(est->world_from_object, s.world_from_object_true), 0.3);
@@ -149,13 +144,7 @@ TEST_P(CarTwist, CovariancePredictsTheSpreadOfTheEstimates) {
   for (int t = 0; t < kDraws; ++t) {
     const auto obs = Observe(
         s.cam, s.camera_from_world, s.world_from_object_true, s.points, GetParam(), 1.0, &rng);
-    const auto est = EstimateObjectTwist(s.cam,
-                                         s.camera_from_world,
-                                         s.world_from_object_prev,
-                                         s.projector,
-                                         obs,
-                                         Vector6d::Zero(),
-                                         TwistEstimatorOptions{});
+    const auto est = EstimateScene(s, obs);
     ASSERT_TRUE(est.ok() && est->success);
     ASSERT_TRUE(est->covariance_valid);
     ASSERT_LT(((Matrix6d::Identity() - s.projector) * est->covariance).norm(),
@@ -235,25 +224,12 @@ TEST(TwistEstimator, TooFewPointsIsAnUnsuccessfulEstimateNotAnError) {
   std::mt19937_64 rng(10);
   const auto obs =
       Observe(s.cam, s.camera_from_world, s.world_from_object_true, s.points, true, 0.0, &rng);
-  const auto est = EstimateObjectTwist(s.cam,
-                                       s.camera_from_world,
-                                       s.world_from_object_prev,
-                                       s.projector,
-                                       obs,
-                                       Vector6d::Zero(),
-                                       TwistEstimatorOptions{});
+  const auto est = EstimateScene(s, obs);
   ASSERT_TRUE(est.ok());
   EXPECT_FALSE(est->success);
   TwistEstimatorOptions bad;
   bad.huber_delta = 0.0;
-  EXPECT_FALSE(EstimateObjectTwist(s.cam,
-                                   s.camera_from_world,
-                                   s.world_from_object_prev,
-                                   s.projector,
-                                   obs,
-                                   Vector6d::Zero(),
-                                   bad)
-                   .ok());
+  EXPECT_FALSE(EstimateScene(s, obs, bad).ok());
 }
 
 // Constrained (planar joint) vs unconstrained (free 6-DoF) under noise: a far
@@ -267,13 +243,7 @@ TEST(TwistEstimator, PlanarJointBeatsFreeMotionUnderNoise) {
     std::mt19937_64 rng(200 + static_cast<uint64_t>(t));
     const auto obs =
         Observe(s.cam, s.camera_from_world, s.world_from_object_true, s.points, true, 1.0, &rng);
-    const auto c = EstimateObjectTwist(s.cam,
-                                       s.camera_from_world,
-                                       s.world_from_object_prev,
-                                       s.projector,
-                                       obs,
-                                       Vector6d::Zero(),
-                                       TwistEstimatorOptions{});
+    const auto c = EstimateScene(s, obs);
     const auto f = EstimateObjectTwist(s.cam,
                                        s.camera_from_world,
                                        s.world_from_object_prev,
@@ -323,13 +293,7 @@ TEST(TwistEstimator, SignificanceSeparatesAParkedCarFromAMovingOne) {
     // Parked: the object did not move; 0.7 px noise (the MAD floor).
     const auto parked =
         Observe(s.cam, s.camera_from_world, s.world_from_object_prev, s.points, true, 0.7, &rng);
-    const auto est = EstimateObjectTwist(s.cam,
-                                         s.camera_from_world,
-                                         s.world_from_object_prev,
-                                         s.projector,
-                                         parked,
-                                         Vector6d::Zero(),
-                                         TwistEstimatorOptions{});
+    const auto est = EstimateScene(s, parked);
     ASSERT_TRUE(est.ok() && est->success);
     const double g =
         TwistSignificance(s.cam, s.camera_from_world, s.world_from_object_prev, *est, parked);
@@ -339,13 +303,7 @@ TEST(TwistEstimator, SignificanceSeparatesAParkedCarFromAMovingOne) {
     // Moving 1.2 m/frame: hugely significant.
     const auto moving =
         Observe(s.cam, s.camera_from_world, s.world_from_object_true, s.points, true, 0.7, &rng);
-    const auto est_m = EstimateObjectTwist(s.cam,
-                                           s.camera_from_world,
-                                           s.world_from_object_prev,
-                                           s.projector,
-                                           moving,
-                                           Vector6d::Zero(),
-                                           TwistEstimatorOptions{});
+    const auto est_m = EstimateScene(s, moving);
     ASSERT_TRUE(est_m.ok() && est_m->success);
     EXPECT_GT(
         TwistSignificance(s.cam, s.camera_from_world, s.world_from_object_prev, *est_m, moving),
