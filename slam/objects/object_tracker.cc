@@ -149,6 +149,9 @@ absl::Status ObjectTrackerOptions::Validate() const {
   if (!(max_track_depth_sigma_m >= 0.0)) {
     return absl::InvalidArgumentError("object tracker needs max_track_depth_sigma_m >= 0");
   }
+  if (!(stationary_max_leave_speed_mps >= 0.0)) {
+    return absl::InvalidArgumentError("object tracker needs stationary_max_leave_speed_mps >= 0");
+  }
   if (!(acceleration_sigma_mps2 >= 0.0) || !(angular_acceleration_sigma_radps2 > 0.0) ||
       !(max_step_sigma_px > 0.0) || !(filter_gate_confidence > 0.0) ||
       !(filter_gate_confidence < 1.0) || max_coast_frames < 0) {
@@ -387,22 +390,31 @@ bool ObjectTracker::BeyondTrackingRange(const SE3d& camera_from_object) const {
          DepthNoise(camera_from_object.translation().z(), 1.0) > options_.max_track_depth_sigma_m;
 }
 
-Matrix6d ObjectTracker::PredictedCovariance(const FrameContext& ctx, const TrackedObject& o) const {
-  // Random acceleration over the step, as a change of the per-step twist at
-  // the object's origin c: δv = a·dt², δω = α·dt²; moved to the world
-  // origin by v = v_c + c × ω.
-  const double dt2 = ctx.dt * ctx.dt;
-  const double qv = std::pow(options_.acceleration_sigma_mps2 * dt2, 2);
-  const double qw = std::pow(options_.angular_acceleration_sigma_radps2 * dt2, 2);
+Matrix6d ObjectTracker::OriginCovariance(const TrackedObject& o,
+                                         double velocity_sigma,
+                                         double angular_sigma) const {
+  // Independent per-step changes of the velocity and angular velocity at the
+  // object's origin c, moved to the world origin by v = v_c + c × ω and
+  // projected onto the joint's twists.
   Matrix6d q = Matrix6d::Zero();
-  q.topLeftCorner<3, 3>() = qv * Eigen::Matrix3d::Identity();
-  q.bottomRightCorner<3, 3>() = qw * Eigen::Matrix3d::Identity();
+  q.topLeftCorner<3, 3>() = velocity_sigma * velocity_sigma * Eigen::Matrix3d::Identity();
+  q.bottomRightCorner<3, 3>() = angular_sigma * angular_sigma * Eigen::Matrix3d::Identity();
   Matrix6d to_world = Matrix6d::Identity();
   to_world.topRightCorner<3, 3>() = geometry::SO3d::Hat(o.world_from_object.translation());
+  const Matrix6d projector = o.joint.WorldProjector();
+  return projector * to_world * q * to_world.transpose() * projector.transpose();
+}
+
+Matrix6d ObjectTracker::PredictedCovariance(const FrameContext& ctx, const TrackedObject& o) const {
+  // Random acceleration over the step, as a change of the per-step twist at
+  // the object's origin: δv = a·dt², δω = α·dt².
+  const double dt2 = ctx.dt * ctx.dt;
   const double r = o.step_seconds > 0.0 ? ctx.dt / o.step_seconds : 1.0;
   const Matrix6d projector = o.joint.WorldProjector();
-  return projector * (r * r * o.twist_covariance + to_world * q * to_world.transpose()) *
-         projector.transpose();
+  return projector * (r * r * o.twist_covariance) * projector.transpose() +
+         OriginCovariance(o,
+                          options_.acceleration_sigma_mps2 * dt2,
+                          options_.angular_acceleration_sigma_radps2 * dt2);
 }
 
 bool ObjectTracker::FilterStep(const TrackedObject& o,
@@ -602,24 +614,27 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   }
   if (!est) return false;
   const bool filtered = options_.acceleration_sigma_mps2 > 0.0 && !o->stationary && ctx.dt > 0.0;
+  Matrix6d predicted_covariance = Matrix6d::Zero();
+  // A refused step: the prediction stands for this frame, no observation is
+  // kept, and the next frame searches the points from the prediction; after
+  // max_coast_frames refused steps in a row the object is lost (and
+  // re-acquired later).
+  auto coast = [&]() {
+    ++stats_.rejected;
+    int coasted = 0;
+    for (auto it = o->history.rbegin(); it != o->history.rend() && it->observations.empty(); ++it)
+      ++coasted;
+    if (coasted >= options_.max_coast_frames) return false;
+    o->world_from_object = predicted;
+    o->twist_step = initial;
+    o->step_seconds = ctx.dt;
+    o->twist_covariance = predicted_covariance;
+    for (ObjectPoint& p : o->points) p.seen_last_frame = false;
+    return true;
+  };
   if (filtered) {
-    const Matrix6d predicted_covariance =
-        o->twist_covariance_valid ? PredictedCovariance(ctx, *o) : Matrix6d::Zero();
-    if (!FilterStep(*o, initial, predicted_covariance, &*est)) {
-      ++stats_.rejected;
-      int coasted = 0;
-      for (auto it = o->history.rbegin(); it != o->history.rend() && it->observations.empty(); ++it)
-        ++coasted;
-      if (coasted >= options_.max_coast_frames) return false;  // lost; re-acquired later
-      // The prediction stands for this frame; no observation is kept, and the
-      // next frame searches the points from the prediction.
-      o->world_from_object = predicted;
-      o->twist_step = initial;
-      o->step_seconds = ctx.dt;
-      o->twist_covariance = predicted_covariance;
-      for (ObjectPoint& p : o->points) p.seen_last_frame = false;
-      return true;
-    }
+    if (o->twist_covariance_valid) predicted_covariance = PredictedCovariance(ctx, *o);
+    if (!FilterStep(*o, initial, predicted_covariance, &*est)) return coast();
   }
 
   if (options_.stationary_after_frames > 0 && ctx.dt > 0.0) {
@@ -630,6 +645,10 @@ bool ObjectTracker::Track(const FrameContext& ctx,
             ChiSquareQuantile(dof, options_.stationary_confidence);
     const double speed =
         PointVelocity(est->twist, o->world_from_object.translation()).norm() / ctx.dt;
+    if (o->stationary && significant && options_.stationary_max_leave_speed_mps > 0.0 &&
+        speed > options_.stationary_max_leave_speed_mps) {
+      return coast();  // no car starts that fast: a failed measurement
+    }
     if (o->stationary) {
       o->stationary = !(significant && speed >= options_.stationary_leave_speed_mps);
       o->insignificant_steps = o->stationary ? o->insignificant_steps + 1 : 0;
@@ -742,10 +761,30 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
                                                           initial,
                                                           options_.estimator);
   if (!est.ok() || !est->success) return false;
+  const double n = std::max(1.0, steps);
+  if (options_.gate_reacquisition && options_.acceleration_sigma_mps2 > 0.0 &&
+      o->twist_covariance_valid && !o->stationary && o->step_seconds > 0.0) {
+    // The motion over the gap is predicted as n steps of the last one: its
+    // covariance n² P, plus a random acceleration held over the gap (n³ q).
+    const double dt2 = o->step_seconds * o->step_seconds;
+    const Matrix6d predicted_covariance =
+        projector * (n * n * o->twist_covariance) * projector.transpose() +
+        n * n * n *
+            OriginCovariance(*o,
+                             options_.acceleration_sigma_mps2 * dt2,
+                             options_.angular_acceleration_sigma_radps2 * dt2);
+    if (!FilterStep(*o, initial, predicted_covariance, &*est)) return false;
+  }
   o->joint = EffectiveJoint(det.joint);
   o->world_from_object = est->world_from_object;
-  o->twist_step = est->twist / std::max(1.0, steps);
-  o->twist_covariance_valid = false;  // set by the next tracked step
+  o->twist_step = est->twist / n;
+  // The mean step over the gap, with its covariance: the next tracked step is
+  // fused with it and gated (a re-acquisition's next step is as likely to
+  // lock onto an occluder as any).
+  o->twist_covariance_valid =
+      options_.gate_after_reacquisition && est->covariance_valid && !o->stationary;
+  o->twist_covariance =
+      o->twist_covariance_valid ? Matrix6d(est->covariance / (n * n)) : Matrix6d::Zero();
   o->step_seconds = ctx.dt;
   o->last_num_inliers = est->num_inliers;
   o->last_sigma_px = est->sigma_px;
@@ -846,12 +885,22 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
       if (reacquiring) unmatched.push_back(&det);
     }
   }
+  // Objects tracked up to the last frame whose cluster has no detection in
+  // this one: the cluster association can give a car a new cluster (fast
+  // image motion, a changed mask). They are offered the unmatched detections
+  // like lost objects, before a new object is created on one.
+  std::unordered_set<int64_t> detected_clusters;
+  for (const ObjectDetectionInput& det : frame.detections) detected_clusters.insert(det.cluster_id);
+  auto may_take = [&](const TrackedObject& obj) {
+    return obj.state == ObjectState::kLost ||
+           (options_.reidentify_undetected && detected_clusters.count(obj.cluster_id) == 0);
+  };
   for (const ObjectDetectionInput* det : unmatched) {
     // Re-identification of a recently lost object of the same class.
     TrackedObject* best = nullptr;
     for (auto& [id, obj] : objects_) {
-      if (handled.count(id) > 0 || obj.class_id != det->class_id ||
-          obj.state != ObjectState::kLost || obj.cluster_id == det->cluster_id)
+      if (handled.count(id) > 0 || obj.class_id != det->class_id || !may_take(obj) ||
+          obj.cluster_id == det->cluster_id)
         continue;  // (the cluster's own object was tried above)
       double score = 0.0;
       if (Reacquire(ctx, *det, &obj, &score)) {
