@@ -201,7 +201,7 @@ RunResult Run(int num_cars, int frames, int window, int ba_iterations) {
       std::fprintf(stderr, "BA failed: %s\n", std::string(summary.status().message()).c_str());
       std::exit(1);
     }
-    ApplyBaToTrackedObjects(problem, links, &tracker);
+    ApplyBaToTrackedObjects(problem, links, ObjectBaOptions{}, &tracker);
     r.ba_solve_ms.push_back(solve_ms);
     r.ba_total_ms.push_back(total.ElapsedMs());
     r.ba_terms_static = summary->num_static_terms;

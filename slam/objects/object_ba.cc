@@ -67,6 +67,7 @@ std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
 
 void ApplyBaToTrackedObjects(const DynamicBaProblem& problem,
                              const std::vector<ObjectBaLink>& links,
+                             const ObjectBaOptions& options,
                              ObjectTracker* tracker) {
   CHECK(tracker != nullptr);
   for (const ObjectBaLink& link : links) {
@@ -90,14 +91,18 @@ void ApplyBaToTrackedObjects(const DynamicBaProblem& problem,
     if (!o->history.empty() && pose_of_frame.count(o->history.back().frame_index) > 0 &&
         o->state != ObjectState::kLost) {
       o->world_from_object = o->history.back().world_from_object;
-      if (o->history.size() >= 2) {
-        const ObjectPoseSample& prev = o->history[o->history.size() - 2];
-        if (pose_of_frame.count(prev.frame_index) > 0 &&
-            o->history.back().frame_index == prev.frame_index + 1) {
-          o->twist_step = o->joint.WorldProjector() *
-                          (o->world_from_object * prev.world_from_object.Inverse()).Log();
-          o->history.back().twist_step = o->twist_step;
-        }
+      // The mean step over the last twist_steps frames when they are all in
+      // the window, else over fewer.
+      for (int k = std::max(1, options.twist_steps); k >= 1; --k) {
+        if (static_cast<int>(o->history.size()) <= k) continue;
+        const ObjectPoseSample& first = o->history[o->history.size() - 1 - static_cast<size_t>(k)];
+        if (pose_of_frame.count(first.frame_index) == 0 ||
+            o->history.back().frame_index != first.frame_index + k)
+          continue;
+        o->twist_step = o->joint.WorldProjector() *
+                        (o->world_from_object * first.world_from_object.Inverse()).Log() / k;
+        o->history.back().twist_step = o->twist_step;
+        break;
       }
     }
   }

@@ -25,6 +25,15 @@ struct ObjectBaOptions {
   int min_frames = 3;  // objects seen in fewer window frames are skipped
   int min_observations_per_point = 2;
   double sigma_px = 1.0;  // per observation (MAD replaces it by default)
+  // The step twist written back (the object's reported twist and the
+  // tracker's next prediction) is the mean over the last twist_steps steps
+  // of the refined poses, Log(P_i P_{i−k}⁻¹) / k. One step's difference
+  // carries the poses' frame-to-frame noise twice: on the rendered scenes
+  // the lead car's reported speed was off by ±2-4 km/h from frame to frame.
+  // 2 steps: speed error 1.05 -> 0.93 km/h over 4 scenarios x 3 seeds, at
+  // the cost of half a frame of lag (docs/objects.md §17); 3 steps lag the
+  // braking cars (follow_braking 0.72 -> 0.84 km/h).
+  int twist_steps = 2;
 };
 
 // For every tracked object, the history samples whose frame index is in
@@ -38,9 +47,11 @@ std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
 
 // Writes the solved poses and points back: history poses, points in the
 // object frame, the current pose when the newest frame was in the window, and
-// the last step twist Log(P_i P_{i−1}⁻¹) when both frames were.
+// the step twist Log(P_i P_{i−k}⁻¹) / k (k = options.twist_steps, or fewer
+// when the older frames were not in the window or not consecutive).
 void ApplyBaToTrackedObjects(const DynamicBaProblem& problem,
                              const std::vector<ObjectBaLink>& links,
+                             const ObjectBaOptions& options,
                              ObjectTracker* tracker);
 
 }  // namespace twist::objects

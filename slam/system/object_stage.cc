@@ -294,15 +294,16 @@ void ObjectStage::RunDynamicBa(std::vector<ObjectResult>* results) {
     keyframe_of_frame[index] = static_cast<int>(problem.keyframes.size());
     problem.keyframes.push_back(kf);
   }
-  const auto links = objects::AddTrackedObjectsToBa(
-      tracker_, keyframe_of_frame, objects::ObjectBaOptions{}, &problem);
+  const objects::ObjectBaOptions ba_options;
+  const auto links =
+      objects::AddTrackedObjectsToBa(tracker_, keyframe_of_frame, ba_options, &problem);
   if (links.empty()) return;
   objects::DynamicBaOptions ba;
   ba.max_iterations = options_.ba_iterations;
   ba.constrained = config_.options.constrain_objects;
   const auto summary = objects::SolveDynamicBa(&problem, ba);
   if (!summary.ok() || !summary->usable) return;
-  objects::ApplyBaToTrackedObjects(problem, links, &tracker_);
+  objects::ApplyBaToTrackedObjects(problem, links, ba_options, &tracker_);
   for (ObjectResult& o : *results) {
     auto it = tracker_.objects().find(o.id);
     if (it != tracker_.objects().end()) o = objects::ObjectTracker::ToResult(it->second);

@@ -348,7 +348,7 @@ TEST(ObjectTracker, FarObjectIsCreatedOnlyOnceItsStereoDepthIsUsable) {
 // rig), then lost; without the limit it is tracked on.
 TEST(ObjectTracker, AnObjectRecedingBeyondTheTrackingRangeIsLost) {
   for (bool limited : {true, false}) {
-    CarSequence seq(0.3, 25, 3.0, 60, 31.0);
+    CarSequence seq(0.3, 25, 3.0, 60, 28.0);
     Vector6d step = Vector6d::Zero();
     step(2) = 1.6;  // world z, along the road; the camera drives 0.6 m/frame
     seq.set_step(step);

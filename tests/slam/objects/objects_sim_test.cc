@@ -186,7 +186,7 @@ std::map<int, TrackStats> RunScenario(const std::string& name,
         const auto summary = SolveDynamicBa(&problem, ba_options);
         CHECK(summary.ok()) << summary.status();
         if (summary->usable) {
-          ApplyBaToTrackedObjects(problem, links, &tracker);
+          ApplyBaToTrackedObjects(problem, links, ObjectBaOptions{}, &tracker);
           for (ObjectResult& o : *results) {
             if (tracker.objects().count(o.id) > 0)
               o = ObjectTracker::ToResult(tracker.objects().at(o.id));
