@@ -164,8 +164,10 @@ TEST(ObjectsEndToEnd, DrivingCarsTrackedWithPlanarConstraint) {
   EXPECT_GE(second->tracked_frames, 6);
   EXPECT_LT(second->rpe_r_deg_per_m, 1.0);
   EXPECT_LT(second->speed_error_kmh, 3.5);
-  // Parked cars: tracked and nearly still (measured mean 1.4 km/h; held
-  // stationary once their motion is insignificant).
+  // Parked cars: tracked and nearly still (held stationary once their motion
+  // is insignificant). Measured mean 0.27 km/h; 0.78 km/h when a step from
+  // standstill faster than 4 m/s may start a held car (docs/objects.md §16).
+  // The bound is the target.
   int parked = 0;
   double parked_speed = 0.0;
   for (const auto& m : run.eval.objects) {
@@ -176,8 +178,18 @@ TEST(ObjectsEndToEnd, DrivingCarsTrackedWithPlanarConstraint) {
     parked_speed += m.speed_error_kmh;
     ++parked;
   }
+  std::printf(
+      "[driving] lead ATE %.3f m, RPE_R %.3f deg/m, speed error %.2f km/h; second RPE_R "
+      "%.3f deg/m, speed error %.2f km/h; %d parked, mean speed error %.2f km/h\n",
+      lead->ate,
+      lead->rpe_r_deg_per_m,
+      lead->speed_error_kmh,
+      second->rpe_r_deg_per_m,
+      second->speed_error_kmh,
+      parked,
+      parked_speed / std::max(parked, 1));
   EXPECT_GE(parked, 2);
-  EXPECT_LT(parked_speed / std::max(parked, 1), 2.5);
+  EXPECT_LT(parked_speed / std::max(parked, 1), 0.5);
 
   // Planar constraint: every planar track keeps its height above the road
   // (the component along its joint normal) and has no out-of-plane twist.
