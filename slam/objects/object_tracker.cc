@@ -390,15 +390,16 @@ bool ObjectTracker::BeyondTrackingRange(const SE3d& camera_from_object) const {
          DepthNoise(camera_from_object.translation().z(), 1.0) > options_.max_track_depth_sigma_m;
 }
 
-Matrix6d ObjectTracker::OriginCovariance(const TrackedObject& o,
-                                         double velocity_sigma,
-                                         double angular_sigma) const {
-  // Independent per-step changes of the velocity and angular velocity at the
-  // object's origin c, moved to the world origin by v = v_c + c × ω and
-  // projected onto the joint's twists.
+Matrix6d ObjectTracker::ProcessNoise(const TrackedObject& o, double dt) const {
+  // Random acceleration over a step of dt, as a change of the per-step twist
+  // at the object's origin c: δv = a·dt², δω = α·dt²; moved to the world
+  // origin by v = v_c + c × ω and projected onto the joint's twists.
+  const double dt2 = dt * dt;
+  const double qv = std::pow(options_.acceleration_sigma_mps2 * dt2, 2);
+  const double qw = std::pow(options_.angular_acceleration_sigma_radps2 * dt2, 2);
   Matrix6d q = Matrix6d::Zero();
-  q.topLeftCorner<3, 3>() = velocity_sigma * velocity_sigma * Eigen::Matrix3d::Identity();
-  q.bottomRightCorner<3, 3>() = angular_sigma * angular_sigma * Eigen::Matrix3d::Identity();
+  q.topLeftCorner<3, 3>() = qv * Eigen::Matrix3d::Identity();
+  q.bottomRightCorner<3, 3>() = qw * Eigen::Matrix3d::Identity();
   Matrix6d to_world = Matrix6d::Identity();
   to_world.topRightCorner<3, 3>() = geometry::SO3d::Hat(o.world_from_object.translation());
   const Matrix6d projector = o.joint.WorldProjector();
@@ -406,15 +407,9 @@ Matrix6d ObjectTracker::OriginCovariance(const TrackedObject& o,
 }
 
 Matrix6d ObjectTracker::PredictedCovariance(const FrameContext& ctx, const TrackedObject& o) const {
-  // Random acceleration over the step, as a change of the per-step twist at
-  // the object's origin: δv = a·dt², δω = α·dt².
-  const double dt2 = ctx.dt * ctx.dt;
   const double r = o.step_seconds > 0.0 ? ctx.dt / o.step_seconds : 1.0;
   const Matrix6d projector = o.joint.WorldProjector();
-  return projector * (r * r * o.twist_covariance) * projector.transpose() +
-         OriginCovariance(o,
-                          options_.acceleration_sigma_mps2 * dt2,
-                          options_.angular_acceleration_sigma_radps2 * dt2);
+  return projector * (r * r * o.twist_covariance) * projector.transpose() + ProcessNoise(o, ctx.dt);
 }
 
 bool ObjectTracker::FilterStep(const TrackedObject& o,
@@ -766,13 +761,9 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
       o->twist_covariance_valid && !o->stationary && o->step_seconds > 0.0) {
     // The motion over the gap is predicted as n steps of the last one: its
     // covariance n² P, plus a random acceleration held over the gap (n³ q).
-    const double dt2 = o->step_seconds * o->step_seconds;
     const Matrix6d predicted_covariance =
         projector * (n * n * o->twist_covariance) * projector.transpose() +
-        n * n * n *
-            OriginCovariance(*o,
-                             options_.acceleration_sigma_mps2 * dt2,
-                             options_.angular_acceleration_sigma_radps2 * dt2);
+        n * n * n * ProcessNoise(*o, o->step_seconds);
     if (!FilterStep(*o, initial, predicted_covariance, &*est)) return false;
   }
   o->joint = EffectiveJoint(det.joint);

@@ -86,9 +86,11 @@ struct TrackedObject {
   // duration in seconds (0 before the first step).
   geometry::Vector6d twist_step = geometry::Vector6d::Zero();
   double step_seconds = 0.0;
-  // Covariance of twist_step after the last tracked step (the constant-
-  // velocity filter's state, ObjectTrackerOptions::acceleration_sigma_mps2);
-  // invalid after creation, re-acquisition or while stationary.
+  // Covariance of twist_step after the last tracked step or re-acquisition
+  // (the constant-velocity filter's state,
+  // ObjectTrackerOptions::acceleration_sigma_mps2); invalid after creation,
+  // while stationary, and after a re-acquisition without
+  // gate_after_reacquisition.
   geometry::Matrix6d twist_covariance = geometry::Matrix6d::Zero();
   bool twist_covariance_valid = false;
   std::vector<ObjectPoint> points;
@@ -325,12 +327,11 @@ class ObjectTracker {
                   const geometry::Vector6d& predicted,
                   const geometry::Matrix6d& predicted_covariance,
                   TwistEstimate* estimate) const;
-  // Covariance of independent changes of the per-step velocity and angular
-  // velocity at the object's origin (σ each, per step), as a world twist
-  // projected onto the object's joint.
-  geometry::Matrix6d OriginCovariance(const TrackedObject& object,
-                                      double velocity_sigma,
-                                      double angular_sigma) const;
+  // The filter's process noise over one step of `dt` seconds: a random
+  // acceleration (acceleration_sigma_mps2, angular_acceleration_sigma_radps2)
+  // at the object's origin, as a change of its per-step world twist projected
+  // onto its joint.
+  geometry::Matrix6d ProcessNoise(const TrackedObject& object, double dt) const;
   // Stereo depth noise z² σ_d s / (f b) of a point at `depth`, s the scale of
   // its keypoint's pyramid level (1: level 0).
   double DepthNoise(double depth, double level_scale) const;
