@@ -556,20 +556,30 @@ TEST(ObjectTracker, ATrackedCarUnderANewClusterIdKeepsItsObject) {
   }
 }
 
-// Tracks the car of `seq` (cluster 11) for 6 frames, then hides it for 2;
-// returns its object id (-1 on failure).
-int64_t TrackThenHide(CarSequence* seq, ObjectTracker* tracker) {
-  int64_t id = -1;
-  for (int i = 0; i < 6; ++i) {
-    const auto r = tracker->Process(seq->Next(11, true));
-    if (!r.ok() || r->size() != 1u) return -1;
-    id = (*r)[0].id;
+// A car (cluster 11, 0.3 px noise) tracked for 6 frames, then hidden for 2.
+struct HiddenCar {
+  HiddenCar(uint64_t seed, const ObjectTrackerOptions& options)
+      : seq(0.3, seed), tracker(seq.camera(), options) {
+    for (int i = 0; i < 6; ++i) {
+      const auto r = tracker.Process(seq.Next(11, true));
+      if (!r.ok() || r->size() != 1u) return;
+      id = (*r)[0].id;
+    }
+    for (int i = 0; i < 2; ++i) {
+      if (!tracker.Process(seq.Next(11, false)).ok()) id = -1;
+    }
   }
-  for (int i = 0; i < 2; ++i) {
-    if (!tracker->Process(seq->Next(11, false)).ok()) return -1;
+  const TrackedObject& object() const { return tracker.objects().at(id); }
+  // Distance of the object's origin from the car's true one.
+  double Error() const {
+    return (object().world_from_object.translation() - seq.world_from_object().translation())
+        .norm();
   }
-  return id;
-}
+
+  CarSequence seq;
+  ObjectTracker tracker;
+  int64_t id = -1;  // -1: not tracked
+};
 
 // A car hidden for two frames comes back shown 0.5 m aside and turned by 10°
 // (its matches on another car): the motion over the gap fails the filter's
@@ -578,21 +588,18 @@ int64_t TrackThenHide(CarSequence* seq, ObjectTracker* tracker) {
 // the re-acquisition is taken as it is.
 TEST(ObjectTracker, AReacquisitionFarFromThePredictionIsRefused) {
   for (bool gate : {true, false}) {
-    CarSequence seq(0.3, 7);
     ObjectTrackerOptions options;
     options.gate_reacquisition = gate;
-    ObjectTracker tracker(seq.camera(), options);
-    const int64_t id = TrackThenHide(&seq, &tracker);
-    ASSERT_GE(id, 0);
+    HiddenCar car(7, options);
+    ASSERT_GE(car.id, 0);
     // Turned about the car's own centre (a world rotation would also move it).
     const geometry::SO3d turn = geometry::SO3d::Exp(Eigen::Vector3d(0, 0.17, 0));
-    const Eigen::Vector3d c = (SE3d::Exp(seq.step()) * seq.world_from_object()).translation();
-    seq.set_measurement_glitch(SE3d(turn, c - turn * c + Eigen::Vector3d(0.5, 0, 0)));
-    const auto back = tracker.Process(seq.Next(11, true));
-    ASSERT_TRUE(back.ok());
-    const TrackedObject& o = tracker.objects().at(id);
-    const double error =
-        (o.world_from_object.translation() - seq.world_from_object().translation()).norm();
+    const Eigen::Vector3d c =
+        (SE3d::Exp(car.seq.step()) * car.seq.world_from_object()).translation();
+    car.seq.set_measurement_glitch(SE3d(turn, c - turn * c + Eigen::Vector3d(0.5, 0, 0)));
+    ASSERT_TRUE(car.tracker.Process(car.seq.Next(11, true)).ok());
+    const TrackedObject& o = car.object();
+    const double error = car.Error();
     std::printf("[re-acquisition gate %s] state %d, error %.2f m\n",
                 gate ? "on" : "off",
                 static_cast<int>(o.state),
@@ -611,21 +618,17 @@ TEST(ObjectTracker, AReacquisitionFarFromThePredictionIsRefused) {
 // it the filter restarted there and took the first step as measured.
 TEST(ObjectTracker, TheStepAfterAReacquisitionIsGated) {
   for (bool gate : {true, false}) {
-    CarSequence seq(0.3, 8);
     ObjectTrackerOptions options;
     options.gate_after_reacquisition = gate;
-    ObjectTracker tracker(seq.camera(), options);
-    const int64_t id = TrackThenHide(&seq, &tracker);
-    ASSERT_GE(id, 0);
-    ASSERT_TRUE(tracker.Process(seq.Next(11, true)).ok());
-    ASSERT_EQ(tracker.objects().at(id).state, ObjectState::kTracked);
-    seq.set_measurement_glitch(
+    HiddenCar car(8, options);
+    ASSERT_GE(car.id, 0);
+    ASSERT_TRUE(car.tracker.Process(car.seq.Next(11, true)).ok());
+    ASSERT_EQ(car.object().state, ObjectState::kTracked);
+    car.seq.set_measurement_glitch(
         SE3d(geometry::SO3d::Exp(Eigen::Vector3d(0, 0.1, 0)), Eigen::Vector3d(1, 0, 0)));
-    ASSERT_TRUE(tracker.Process(seq.Next(11, true)).ok());
-    const int rejected = tracker.last_stats().rejected;
-    const TrackedObject& o = tracker.objects().at(id);
-    const double error =
-        (o.world_from_object.translation() - seq.world_from_object().translation()).norm();
+    ASSERT_TRUE(car.tracker.Process(car.seq.Next(11, true)).ok());
+    const int rejected = car.tracker.last_stats().rejected;
+    const double error = car.Error();
     std::printf("[step after re-acquisition, gate %s] %d rejected, error %.2f m\n",
                 gate ? "on" : "off",
                 rejected,
