@@ -224,38 +224,49 @@ struct EngineResult {
   double stream_s = 0.0;
 };
 
-// The whole engine on a rendered scenario (default SlamOptions), with the
-// mapping in Process() (synchronous, as the tests run it) or in its own
-// thread (background, as the service runs it).
-absl::StatusOr<EngineResult> RunEngine(const std::string& scenario_name,
-                                       int frames,
-                                       uint64_t seed,
-                                       int object_ba_window,
-                                       twist::MappingMode mapping) {
+// A rendered scenario's frames, rendered once for all the engine runs.
+struct EngineStream {
+  twist::geometry::StereoCamera camera;
+  std::vector<twist::StereoFrame> frames;
+};
+
+absl::StatusOr<EngineStream> RenderStream(const std::string& scenario_name,
+                                          int frames,
+                                          uint64_t seed) {
   auto scenario = twist::sim::MakeScenario(scenario_name, seed, frames);
   if (!scenario.ok()) return scenario.status();
   twist::sim::RenderOptions ro;
   ro.gray = true;
   twist::sim::Renderer renderer(scenario->camera, ro);
-  twist::SessionConfig config;
-  config.camera = scenario->camera;
-  if (object_ba_window >= 0) config.options.object_ba_window_frames = object_ba_window;
-  config.options.mapping_mode = mapping;
-  std::vector<twist::StereoFrame> stream;
+  EngineStream stream;
+  stream.camera = scenario->camera;
   for (int k = 0; k < frames; ++k) {
     twist::sim::Exposure left, right;
     left.noise_seed = 2 * static_cast<uint64_t>(k) + 1;
     right.noise_seed = 2 * static_cast<uint64_t>(k) + 2;
     const twist::sim::StereoRender img = renderer.RenderStereo(
         scenario->scene, scenario->TimeOf(k), scenario->WorldFromCamera(k), left, right);
-    stream.push_back(twist::sim::ScenarioStereoFrame(*scenario, k, img));
+    stream.frames.push_back(twist::sim::ScenarioStereoFrame(*scenario, k, img));
   }
+  return stream;
+}
+
+// The whole engine (default SlamOptions) on `stream`, with the mapping in
+// Process() (synchronous, as the tests run it) or in its own thread
+// (background, as the service runs it).
+absl::StatusOr<EngineResult> RunEngine(const EngineStream& stream,
+                                       int object_ba_window,
+                                       twist::MappingMode mapping) {
+  twist::SessionConfig config;
+  config.camera = stream.camera;
+  if (object_ba_window >= 0) config.options.object_ba_window_frames = object_ba_window;
+  config.options.mapping_mode = mapping;
   auto sys = twist::SlamSystem::Create(config);
   if (!sys.ok()) return sys.status();
   EngineResult r;
   r.object_ba_window = config.options.object_ba_window_frames;
   twist::Stopwatch wall;
-  for (const twist::StereoFrame& f : stream) {
+  for (const twist::StereoFrame& f : stream.frames) {
     const double cpu0 = ProcessCpuMs();
     auto out = (*sys)->Process(f);
     r.process_cpu_ms.push_back(ProcessCpuMs() - cpu0);
@@ -389,12 +400,18 @@ int main(int argc, char** argv) {
                 Percentile(lk, 0.95));
     json << ", \"sparse_flow_60_points_ms\": " << Stats(lk);
   }
+  absl::StatusOr<EngineStream> stream = EngineStream{};
+  if (engine_frames > 0) stream = RenderStream(engine_scenario, engine_frames, engine_seed);
+  if (!stream.ok()) {
+    std::fprintf(
+        stderr, "objects_bench: engine scenario: %s\n", stream.status().ToString().c_str());
+    return 1;
+  }
   for (const auto& [mapping, mode_name] :
        {std::pair{twist::MappingMode::kSynchronous, "synchronous"},
         std::pair{twist::MappingMode::kBackground, "background"}}) {
     if (engine_frames <= 0) break;
-    const absl::StatusOr<EngineResult> e =
-        RunEngine(engine_scenario, engine_frames, engine_seed, engine_object_ba, mapping);
+    const absl::StatusOr<EngineResult> e = RunEngine(*stream, engine_object_ba, mapping);
     if (!e.ok()) {
       std::fprintf(stderr, "objects_bench: engine run: %s\n", e.status().ToString().c_str());
       return 1;
