@@ -17,6 +17,7 @@
 #include "slam/objects/object_ba.h"
 #include "slam/semantic/panoptic.h"
 #include "slam/system/binary_io.h"
+#include "slam/system/slam_system.h"
 
 namespace twist {
 namespace {
@@ -722,6 +723,42 @@ absl::Status ObjectStage::Read(BinaryReader* r, uint32_t version) {
   rng_ = rng;
   window_ = std::move(window);
   return absl::OkStatus();
+}
+
+void ObjectStage::AddToSnapshot(MapSnapshot* snapshot) const {
+  std::map<int, int64_t> plane_cluster;  // plane class -> cluster id
+  std::map<int64_t, const PlaneState*> plane_of_cluster;
+  for (const auto& [cls, ps] : planes_) {
+    if (ps.cluster_id < 0) continue;
+    plane_cluster[cls] = ps.cluster_id;
+    plane_of_cluster[ps.cluster_id] = &ps;
+  }
+  std::map<int64_t, const objects::TrackedObject*> object_of_cluster;
+  for (const auto& [id, o] : tracker_.objects()) {
+    if (o.cluster_id != objects::kNoCluster) object_of_cluster[o.cluster_id] = &o;
+  }
+  for (const auto& [id, c] : associator_.clusters()) {
+    MapSnapshot::Cluster out;
+    out.id = id;
+    out.class_id = c.class_id;
+    out.instance_id = c.instance_id;
+    out.is_dynamic = config_.classes.IsDynamic(c.class_id);
+    if (auto p = plane_of_cluster.find(id);
+        p != plane_of_cluster.end() && p->second->plane.has_plane()) {
+      out.plane = p->second->plane.plane();
+    }
+    if (auto o = object_of_cluster.find(id); o != object_of_cluster.end()) {
+      out.trajectory.reserve(o->second->history.size());
+      for (const objects::ObjectPoseSample& s : o->second->history) {
+        out.trajectory.emplace_back(s.timestamp_ns, s.world_from_object);
+      }
+    }
+    snapshot->clusters.push_back(std::move(out));
+  }
+  for (MapSnapshot::Point& p : snapshot->points) {
+    if (auto it = plane_cluster.find(p.class_id); it != plane_cluster.end())
+      p.cluster_id = it->second;
+  }
 }
 
 }  // namespace twist

@@ -43,6 +43,8 @@
 
 namespace twist {
 
+struct MapSnapshot;
+
 namespace system_io {
 class BinaryWriter;
 class BinaryReader;
@@ -94,6 +96,14 @@ class ObjectStage {
   static cv::Mat FavourMask(const cv::Mat& panoptic, const joints::ClassTable& classes);
 
   const objects::ObjectTracker& tracker() const { return tracker_; }
+
+  // Adds the stage's clusters to a map snapshot (SlamSystem::Snapshot):
+  // every cluster the associator keeps (class, last instance id, dynamic
+  // flag); a plane class's cluster with its fitted plane; a dynamic cluster
+  // with the pose history of the object that holds it, oldest first, as the
+  // dynamic BA left it (bounded by ObjectTrackerOptions::max_history). Static
+  // points of a plane class are labelled with that class's cluster.
+  void AddToSnapshot(MapSnapshot* snapshot) const;
 
   // Persistence (SlamSystem::Save/Load): everything that evolves from frame
   // to frame (clusters, planes and their points, tracked objects, axis joints,

@@ -635,6 +635,7 @@ MapSnapshot SlamSystemImpl::Snapshot() const {
   for (const auto& [id, kf] : map_.keyframes()) {
     s.keyframes.push_back({kf->id, kf->timestamp_ns, kf->camera_from_world.Inverse()});
   }
+  if (objects_ != nullptr) objects_->AddToSnapshot(&s);
   return s;
 }
 

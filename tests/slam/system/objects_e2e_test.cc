@@ -33,6 +33,7 @@ struct E2eRun {
   io::MaskPixelCounts pixels;
   std::vector<SE3d> gt_cameras;  // world_from_camera, first camera = identity
   io::ObjectEvaluation eval;
+  MapSnapshot snapshot;  // after the last frame
 };
 
 E2eRun RunScenario(const std::string& name, int frames, bool constrained = true) {
@@ -83,6 +84,7 @@ E2eRun RunScenario(const std::string& name, int frames, bool constrained = true)
     run.gt_cameras.push_back(cam0_from_world * world_from_camera);
     run.results.push_back(*std::move(res));
   }
+  run.snapshot = (*sys)->Snapshot();
   auto eval =
       io::EvaluateObjects(run.gt, run.est, run.timestamps, io::ObjectEvalOptions{}, &run.pixels);
   CHECK(eval.ok()) << eval.status();
@@ -220,6 +222,95 @@ TEST(ObjectsEndToEnd, DrivingCarsTrackedWithPlanarConstraint) {
   ASSERT_GT(heights.size(), 10u);
   const auto [lo, hi] = std::minmax_element(heights.begin(), heights.end());
   EXPECT_LT(*hi - *lo, 0.15);
+}
+
+// The map snapshot (GetMap) carries the clusters: the road's with the plane
+// of its last "plane updated" event, and each dynamic one with the pose
+// history of the object that holds it, whose newest pose is the one the
+// last frame reported. Road points are labelled with the road's cluster.
+TEST(ObjectsEndToEnd, TheMapSnapshotCarriesTheClusters) {
+  const E2eRun run = RunScenario("driving", 20);
+  const MapSnapshot& snap = run.snapshot;
+  std::map<int64_t, Eigen::Vector4d> last_plane;
+  for (const auto& r : run.results) {
+    for (const auto& e : r.cluster_events) {
+      if (e.type == ClusterEventType::kPlaneUpdated && e.plane) last_plane[e.cluster_id] = *e.plane;
+    }
+  }
+  ASSERT_FALSE(last_plane.empty());
+  int64_t road_cluster = -1;
+  std::map<int64_t, const MapSnapshot::Cluster*> by_id;
+  for (const MapSnapshot::Cluster& c : snap.clusters) {
+    EXPECT_TRUE(by_id.emplace(c.id, &c).second) << "cluster " << c.id << " twice";
+    EXPECT_EQ(c.is_dynamic, SessionConfig().classes.IsDynamic(c.class_id))
+        << "cluster " << c.id << " class " << c.class_id;
+    if (c.is_dynamic) {
+      EXPECT_FALSE(c.plane.has_value());
+    } else {
+      EXPECT_TRUE(c.trajectory.empty());
+    }
+    if (c.class_id == sim::kClassRoad) road_cluster = c.id;
+  }
+  ASSERT_GE(road_cluster, 0);
+  ASSERT_TRUE(by_id.at(road_cluster)->plane.has_value());
+  ASSERT_TRUE(last_plane.count(road_cluster));
+  EXPECT_EQ(*by_id.at(road_cluster)->plane, last_plane.at(road_cluster));
+
+  // Every object tracked in the last frame ends one dynamic cluster's
+  // trajectory (time-ordered, one sample per frame it was seen in).
+  const FrameResult& last = run.results.back();
+  int matched = 0;
+  for (const ObjectResult& o : last.objects) {
+    if (o.state != ObjectState::kTracked) continue;
+    const MapSnapshot::Cluster* found = nullptr;
+    for (const MapSnapshot::Cluster& c : snap.clusters) {
+      if (!c.trajectory.empty() && c.trajectory.back().first == last.timestamp_ns &&
+          (c.trajectory.back().second.translation() - o.world_from_object.translation()).norm() <
+              1e-9) {
+        found = &c;
+      }
+    }
+    ASSERT_NE(found, nullptr) << "object " << o.id;
+    EXPECT_EQ(found->class_id, o.class_id);
+    EXPECT_TRUE(found->is_dynamic);
+    for (size_t k = 1; k < found->trajectory.size(); ++k) {
+      EXPECT_GT(found->trajectory[k].first, found->trajectory[k - 1].first);
+    }
+    ++matched;
+  }
+  EXPECT_GE(matched, 2);
+
+  int road_points = 0;
+  for (const MapSnapshot::Point& p : snap.points) {
+    if (p.class_id == sim::kClassRoad) {
+      EXPECT_EQ(p.cluster_id, road_cluster);
+      ++road_points;
+    } else if (p.class_id == sim::kClassCar) {
+      EXPECT_EQ(p.cluster_id, -1);
+    }
+  }
+  EXPECT_GT(road_points, 20);
+
+  // The trajectories as the dynamic BA left them, scored like the online
+  // poses (track id = cluster id).
+  std::map<int64_t, int64_t> frame_of;
+  for (size_t k = 0; k < run.timestamps.size(); ++k) frame_of[run.timestamps[k]] = k;
+  std::vector<io::ObjectTrackRow> refined;
+  for (const MapSnapshot::Cluster& c : snap.clusters) {
+    for (const auto& [t_ns, pose] : c.trajectory) {
+      io::ObjectTrackRow row;
+      row.frame = frame_of.at(t_ns);
+      row.track_id = c.id;
+      row.class_id = c.class_id;
+      row.world_from_object = pose;
+      row.instance_id = c.instance_id;
+      refined.push_back(row);
+    }
+  }
+  auto eval =
+      io::EvaluateObjects(run.gt, refined, run.timestamps, io::ObjectEvalOptions{}, &run.pixels);
+  ASSERT_TRUE(eval.ok()) << eval.status();
+  std::printf("[driving, snapshot trajectories]\n%s", io::FormatObjectTable(*eval).c_str());
 }
 
 TEST(ObjectsEndToEnd, FollowBrakingAndDeterminism) {
