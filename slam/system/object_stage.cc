@@ -726,12 +726,9 @@ absl::Status ObjectStage::Read(BinaryReader* r, uint32_t version) {
 }
 
 void ObjectStage::AddToSnapshot(MapSnapshot* snapshot) const {
-  std::map<int, int64_t> plane_cluster;  // plane class -> cluster id
   std::map<int64_t, const PlaneState*> plane_of_cluster;
   for (const auto& [cls, ps] : planes_) {
-    if (ps.cluster_id < 0) continue;
-    plane_cluster[cls] = ps.cluster_id;
-    plane_of_cluster[ps.cluster_id] = &ps;
+    if (ps.cluster_id >= 0) plane_of_cluster[ps.cluster_id] = &ps;
   }
   std::map<int64_t, const objects::TrackedObject*> object_of_cluster;
   for (const auto& [id, o] : tracker_.objects()) {
@@ -756,8 +753,9 @@ void ObjectStage::AddToSnapshot(MapSnapshot* snapshot) const {
     snapshot->clusters.push_back(std::move(out));
   }
   for (MapSnapshot::Point& p : snapshot->points) {
-    if (auto it = plane_cluster.find(p.class_id); it != plane_cluster.end())
-      p.cluster_id = it->second;
+    if (auto it = planes_.find(p.class_id); it != planes_.end() && it->second.cluster_id >= 0) {
+      p.cluster_id = it->second.cluster_id;
+    }
   }
 }
 
