@@ -4,6 +4,7 @@
 
 #include <cstdio>
 #include <random>
+#include <utility>
 
 #include "slam/objects/joint_frames.h"
 #include "slam/semantic/plane_fitting.h"
@@ -474,19 +475,30 @@ TEST(ObjectTracker, MatchingMeasurementsDoNotInheritFlowDrift) {
   EXPECT_GT(drift[1], 10.0 * drift[0]);
 }
 
+// Tracks `seq`'s car under `cluster` for `frames` frames. Returns the object's
+// id (-1 unless it was the single object of every frame) and its first pose.
+std::pair<int64_t, SE3d> TrackCar(ObjectTracker* tracker,
+                                  CarSequence* seq,
+                                  int64_t cluster,
+                                  int frames) {
+  int64_t id = -1;
+  SE3d first;
+  for (int i = 0; i < frames; ++i) {
+    const auto r = tracker->Process(seq->Next(cluster, true));
+    if (!r.ok() || r->size() != 1u) return {-1, first};
+    id = (*r)[0].id;
+    if (i == 0) first = (*r)[0].world_from_object;
+  }
+  return {id, first};
+}
+
 TEST(ObjectTracker, LostThenReidentifiedUnderANewClusterId) {
   CarSequence seq(0.0, 3);
   ObjectTrackerOptions options;
   ObjectTracker tracker(seq.camera(), options);
-  int64_t id = -1;
   const SE3d gt0 = seq.world_from_object();
-  SE3d est0;
-  for (int i = 0; i < 5; ++i) {
-    const auto r = tracker.Process(seq.Next(11, true));
-    ASSERT_TRUE(r.ok());
-    id = (*r)[0].id;
-    if (i == 0) est0 = (*r)[0].world_from_object;
-  }
+  const auto [id, est0] = TrackCar(&tracker, &seq, 11, 5);
+  ASSERT_GE(id, 0);
   for (int i = 0; i < 3; ++i) {
     const auto r = tracker.Process(seq.Next(11, false));
     ASSERT_TRUE(r.ok());
@@ -521,16 +533,9 @@ TEST(ObjectTracker, ATrackedCarUnderANewClusterIdKeepsItsObject) {
     ObjectTrackerOptions options;
     options.reidentify_undetected = reidentify;
     ObjectTracker tracker(seq.camera(), options);
-    int64_t id = -1;
     const SE3d gt0 = seq.world_from_object();
-    SE3d est0;
-    for (int i = 0; i < 5; ++i) {
-      const auto r = tracker.Process(seq.Next(11, true));
-      ASSERT_TRUE(r.ok());
-      ASSERT_EQ(r->size(), 1u);
-      id = (*r)[0].id;
-      if (i == 0) est0 = (*r)[0].world_from_object;
-    }
+    const auto [id, est0] = TrackCar(&tracker, &seq, 11, 5);
+    ASSERT_GE(id, 0);
     for (int i = 0; i < 4; ++i) {
       const auto r = tracker.Process(seq.Next(12, true));
       ASSERT_TRUE(r.ok());
@@ -560,11 +565,8 @@ TEST(ObjectTracker, ATrackedCarUnderANewClusterIdKeepsItsObject) {
 struct HiddenCar {
   HiddenCar(uint64_t seed, const ObjectTrackerOptions& options)
       : seq(0.3, seed), tracker(seq.camera(), options) {
-    for (int i = 0; i < 6; ++i) {
-      const auto r = tracker.Process(seq.Next(11, true));
-      if (!r.ok() || r->size() != 1u) return;
-      id = (*r)[0].id;
-    }
+    id = TrackCar(&tracker, &seq, 11, 6).first;
+    if (id < 0) return;
     for (int i = 0; i < 2; ++i) {
       if (!tracker.Process(seq.Next(11, false)).ok()) id = -1;
     }
