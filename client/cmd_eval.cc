@@ -1,5 +1,5 @@
 // `twistslam eval --dataset DIR --format kitti-odometry|kitti-tracking --seq SEQ
-//                 --est OUTDIR [--json FILE]`
+//                 --est OUTDIR [--json FILE] [--refined]`
 // `twistslam eval --dataset DIR --format ... --seq SEQ --write-gt-run DIR` writes
 // the ground truth in the run-output format (a self-check: evaluating it gives zeros).
 // Camera and object metrics of a run (DESIGN.md §6) as a table on stdout and
@@ -34,6 +34,9 @@ int EvalCommand(int argc, char** argv) {
                 /*required=*/false,
                 "2000")
       .AddFlag("no-mask-pixels", "skip reading the masks (no visible-coverage figure)")
+      .AddFlag("refined",
+               "score the objects' trajectories as the dynamic BA left them "
+               "(objects_refined.txt) instead of the per-frame poses (objects.txt)")
       .AddValue("write-gt-run",
                 "DIR",
                 "instead of evaluating, write the sequence's ground truth as run outputs into "
@@ -53,6 +56,7 @@ int EvalCommand(int argc, char** argv) {
   options.objects.moving_speed_mps = *moving;
   options.objects.min_mask_pixels = *min_px;
   options.count_mask_pixels = !args->Flag("no-mask-pixels");
+  if (args->Flag("refined")) options.objects_file = "objects_refined.txt";
 
   absl::StatusOr<io::DatasetFormat> format = io::ParseDatasetFormat(args->Get("format"));
   if (!format.ok()) return Fail("eval", std::string(format.status().message()), 2);

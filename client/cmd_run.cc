@@ -1,6 +1,7 @@
 // `twistslam run`: streams a dataset sequence through a server (--server) or
 // the embedded engine (--embedded) and writes the run outputs of DESIGN.md §6
-// plus updates.jsonl (one JSON object per frame) and map.ply.
+// plus updates.jsonl (one JSON object per frame), map.ply and
+// objects_refined.txt (the objects' trajectories from the final map).
 #include <unistd.h>
 
 #include <algorithm>
@@ -493,6 +494,11 @@ int RunCommand(int argc, char** argv) {
     jsonl += '\n';
     writer.Add(r);
   }
+  std::vector<io::TimedObjectTrajectory> refined;
+  for (const MapSnapshot::Object& o : map.objects) {
+    refined.push_back({o.id, o.class_id, o.instance_id, o.trajectory});
+  }
+  writer.SetRefinedObjects(std::move(refined));
   const std::filesystem::path out_dir = args->Get("out");
   if (!WriteFileAtomic((out_dir / "updates.jsonl").string(), jsonl, &out_error) ||
       !WriteFileAtomic((out_dir / "map.ply").string(), client::MapToPly(map), &out_error)) {

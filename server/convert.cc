@@ -649,6 +649,7 @@ std::vector<pb::MapChunk> MapToChunks(const MapSnapshot& map, const MapChunkOpti
   summary->set_num_keyframes(options.skip_keyframes ? 0
                                                     : static_cast<int64_t>(map.keyframes.size()));
   summary->set_num_clusters(options.skip_clusters ? 0 : static_cast<int64_t>(map.clusters.size()));
+  summary->set_num_objects(options.skip_objects ? 0 : static_cast<int64_t>(map.objects.size()));
   summary->set_frames_processed(options.frames_processed);
   // Running estimate of the current chunk's size; a new chunk starts when the
   // next element would exceed the budget.
@@ -702,6 +703,30 @@ std::vector<pb::MapChunk> MapToChunks(const MapSnapshot& map, const MapChunkOpti
       // then gets a chunk of its own (still far below the message limit).
       const int64_t bytes = static_cast<int64_t>(pc.ByteSizeLong()) + 5;
       *room_for(bytes)->add_clusters() = std::move(pc);
+    }
+  }
+  if (!options.skip_objects) {
+    // A serialized TimedPose takes ~80 bytes: pieces of at most a quarter of
+    // the budget.
+    const size_t poses_per_piece = static_cast<size_t>(std::max<int64_t>(budget / 320, 8));
+    for (const MapSnapshot::Object& o : map.objects) {
+      size_t begin = 0;
+      do {
+        pb::ObjectTrajectory po;
+        po.set_id(o.id);
+        po.set_class_id(o.class_id);
+        po.set_instance_id(o.instance_id);
+        po.set_cluster_id(o.cluster_id);
+        const size_t end = std::min(o.trajectory.size(), begin + poses_per_piece);
+        for (size_t k = begin; k < end; ++k) {
+          pb::TimedPose* tp = po.add_trajectory();
+          tp->set_timestamp_ns(o.trajectory[k].first);
+          ToProto(o.trajectory[k].second, tp->mutable_world_from_object());
+        }
+        begin = end;
+        const int64_t bytes = static_cast<int64_t>(po.ByteSizeLong()) + 5;
+        *room_for(bytes)->add_objects() = std::move(po);
+      } while (begin < o.trajectory.size());
     }
   }
   for (size_t i = 0; i < chunks.size(); ++i) {

@@ -91,13 +91,16 @@ pb::TrackingState TrackingStateToProto(TrackingState state);
 void ToProto(const FrameResult& result, pb::FrameUpdate* out);
 
 // Splits a map snapshot into chunks of at most ~max_chunk_bytes serialized
-// bytes. Chunk 0 carries the summary; the last chunk has last = true.
+// bytes. Chunk 0 carries the summary; the last chunk has last = true. An
+// object trajectory longer than a chunk's share is split into pieces with the
+// same id (MapFromChunks joins them).
 struct MapChunkOptions {
   int64_t max_chunk_bytes = 1 << 20;
   bool skip_points = false;
   bool skip_keyframes = false;
   bool skip_clusters = false;
   bool skip_trajectories = false;
+  bool skip_objects = false;
   int64_t frames_processed = 0;
 };
 std::vector<pb::MapChunk> MapToChunks(const MapSnapshot& map, const MapChunkOptions& options);

@@ -270,6 +270,7 @@ grpc::Status SlamServiceImpl::GetMap(grpc::ServerContext* context,
   options.skip_keyframes = request->skip_keyframes();
   options.skip_clusters = request->skip_clusters();
   options.skip_trajectories = request->skip_trajectories();
+  options.skip_objects = request->skip_objects();
   options.frames_processed = frames;
   for (const pb::MapChunk& chunk : MapToChunks(*map, options)) {
     if (context->IsCancelled())

@@ -164,6 +164,21 @@ MapSnapshot MapFromChunks(const std::vector<pb::MapChunk>& chunks) {
       }
       map.clusters.push_back(std::move(cluster));
     }
+    for (const pb::ObjectTrajectory& o : chunk.objects()) {
+      // The pieces of one long trajectory come one after the other.
+      if (map.objects.empty() || map.objects.back().id != o.id()) {
+        MapSnapshot::Object object;
+        object.id = o.id();
+        object.class_id = o.class_id();
+        object.instance_id = o.instance_id();
+        object.cluster_id = o.cluster_id();
+        map.objects.push_back(std::move(object));
+      }
+      for (const pb::TimedPose& t : o.trajectory()) {
+        map.objects.back().trajectory.emplace_back(t.timestamp_ns(),
+                                                   PoseFromProto(t.world_from_object()));
+      }
+    }
   }
   return map;
 }

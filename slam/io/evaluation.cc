@@ -68,7 +68,7 @@ absl::StatusOr<RunEvaluation> EvaluateRunDirectory(const SequenceReader& sequenc
     eval.objects_gt_source = "label_02 + poses";
   }
   if (!eval.objects_gt_source.empty()) {
-    const std::string path = JoinPath(est_dir, "objects.txt");
+    const std::string path = JoinPath(est_dir, options.objects_file);
     absl::StatusOr<std::vector<ObjectTrackRow>> est = ReadObjectTracks(path);
     if (!est.ok()) return est.status();
     for (const ObjectTrackRow& row : *est) {
@@ -163,6 +163,7 @@ std::string FormatRunEvaluation(const RunEvaluation& eval) {
     out += "camera: not evaluated: " + eval.camera_note + "\n";
   }
   if (eval.objects) {
+    out += "objects from " + eval.options.objects_file + "\n";
     out += FormatObjectTable(*eval.objects);
   } else {
     out += "objects: not evaluated: " + eval.objects_note + "\n";
@@ -193,6 +194,7 @@ std::string RunEvaluationJson(const RunEvaluation& eval) {
   w.Key("options").BeginObject();
   w.Key("moving_speed_mps").Number(eval.options.objects.moving_speed_mps);
   w.Key("min_mask_pixels").Int(eval.options.objects.min_mask_pixels);
+  w.Key("objects_file").String(eval.options.objects_file);
   w.Key("max_match_distance_m").Number(eval.options.objects.max_match_distance_m);
   w.Key("mask_pixels_counted").Bool(eval.used_mask_pixels);
   w.EndObject();

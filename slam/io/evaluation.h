@@ -22,6 +22,10 @@ struct RunEvalOptions {
   // Count mask pixels per object (reads every mask of the sequence) for the
   // visible-coverage variant; ignored when the sequence has no masks.
   bool count_mask_pixels = true;
+  // The file of the run directory that holds the object tracks: objects.txt
+  // (the per-frame poses) or objects_refined.txt (the trajectories as the
+  // dynamic BA left them).
+  std::string objects_file = "objects.txt";
 };
 
 struct RunEvaluation {

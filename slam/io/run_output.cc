@@ -48,6 +48,44 @@ std::vector<StampedPose> RunOutputWriter::CameraTum() const {
 
 std::vector<ObjectTrackRow> RunOutputWriter::ObjectRows() const { return objects_; }
 
+void RunOutputWriter::SetRefinedObjects(std::vector<TimedObjectTrajectory> trajectories) {
+  refined_ = std::move(trajectories);
+}
+
+std::vector<ObjectTrackRow> RunOutputWriter::RefinedObjectRows() const {
+  std::vector<ObjectTrackRow> rows;
+  if (!refined_) return rows;
+  std::map<int64_t, int64_t> frame_of_time;
+  for (const FrameRecord& f : frames_) frame_of_time.emplace(f.timestamp_ns, f.index);
+  for (const TimedObjectTrajectory& t : *refined_) {
+    // The poses at the run's frames, in time order.
+    std::vector<std::pair<int64_t, const geometry::SE3d*>> poses;
+    for (const auto& [t_ns, pose] : t.poses) {
+      if (frame_of_time.count(t_ns) > 0) poses.emplace_back(t_ns, &pose);
+    }
+    for (size_t i = 0; i < poses.size(); ++i) {
+      ObjectTrackRow row;
+      row.frame = frame_of_time.at(poses[i].first);
+      row.track_id = t.track_id;
+      row.class_id = t.class_id;
+      row.world_from_object = *poses[i].second;
+      row.instance_id = t.instance_id;
+      // Central difference over the neighbours (one-sided at the ends).
+      const size_t a = i > 0 ? i - 1 : 0;
+      const size_t b = std::min(poses.size() - 1, i + 1);
+      if (b > a && poses[b].first > poses[a].first) {
+        row.twist_in_world = ((*poses[b].second) * poses[a].second->Inverse()).Log() /
+                             (static_cast<double>(poses[b].first - poses[a].first) * 1e-9);
+      }
+      rows.push_back(row);
+    }
+  }
+  std::stable_sort(rows.begin(), rows.end(), [](const ObjectTrackRow& a, const ObjectTrackRow& b) {
+    return a.frame < b.frame || (a.frame == b.frame && a.track_id < b.track_id);
+  });
+  return rows;
+}
+
 std::string RunOutputWriter::SummaryJson(const RunInfo& info) const {
   JsonWriter w;
   w.BeginObject();
@@ -115,6 +153,10 @@ absl::Status RunOutputWriter::Write(const std::string& dir, const RunInfo& info)
   if (!s.ok()) return s;
   s = WriteObjectTracks(JoinPath(dir, "objects.txt"), objects_);
   if (!s.ok()) return s;
+  if (refined_) {
+    s = WriteObjectTracks(JoinPath(dir, "objects_refined.txt"), RefinedObjectRows());
+    if (!s.ok()) return s;
+  }
   return WriteFileAtomic(JoinPath(dir, "summary.json"), SummaryJson(info));
 }
 

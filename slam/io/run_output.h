@@ -3,6 +3,8 @@
 //   camera_tum.txt  TUM `t tx ty tz qx qy qz qw`
 //   objects.txt     `frame track_id class tx ty tz qx qy qz qw vx vy vz wx wy wz instance_id`
 //                   (objects in state new/tracked only)
+//   objects_refined.txt  the same columns from the objects' whole trajectories
+//                   as the dynamic BA left them (SetRefinedObjects; only when set)
 //   summary.json    run description, tracking-state counts, timings, caller's extras
 // Every file is written to a temporary name and renamed, summary.json last, so
 // a directory with summary.json holds a complete run.
@@ -13,6 +15,7 @@
 //   absl::Status s = out.Write("/tmp/run", info);
 #pragma once
 
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -34,17 +37,33 @@ struct RunInfo {
   std::vector<std::pair<std::string, std::string>> strings;
 };
 
+// One object's trajectory at the end of a run (MapSnapshot::Object).
+struct TimedObjectTrajectory {
+  int64_t track_id = 0;
+  int class_id = 0;
+  int64_t instance_id = -1;
+  std::vector<std::pair<int64_t, geometry::SE3d>> poses;  // (timestamp_ns, world_from_object)
+};
+
 class RunOutputWriter {
  public:
   void Add(const FrameResult& result);
+  // The refined trajectories (written as objects_refined.txt). Each pose is
+  // placed at the added frame with its timestamp (poses of other times are
+  // dropped); the twist of a row is the central difference of the poses,
+  // the world twist per second Log(T_{i+1} T_{i-1}^-1) / (t_{i+1} - t_{i-1})
+  // over the track's neighbouring rows (one-sided at its ends; zero for a
+  // single row).
+  void SetRefinedObjects(std::vector<TimedObjectTrajectory> trajectories);
   int64_t num_frames() const { return static_cast<int64_t>(frames_.size()); }
 
   std::vector<geometry::SE3d> CameraPoses() const;
   std::vector<StampedPose> CameraTum() const;
   std::vector<ObjectTrackRow> ObjectRows() const;
+  std::vector<ObjectTrackRow> RefinedObjectRows() const;
   std::string SummaryJson(const RunInfo& info) const;
 
-  // Creates `dir` if needed and writes the four files.
+  // Creates `dir` if needed and writes the files.
   absl::Status Write(const std::string& dir, const RunInfo& info) const;
 
  private:
@@ -60,6 +79,7 @@ class RunOutputWriter {
   };
   std::vector<FrameRecord> frames_;
   std::vector<ObjectTrackRow> objects_;
+  std::optional<std::vector<TimedObjectTrajectory>> refined_;
 };
 
 }  // namespace twist::io

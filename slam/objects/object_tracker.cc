@@ -212,6 +212,7 @@ ObjectTracker::State ObjectTracker::GetState() const {
   s.prev_timestamp_ns = prev_timestamp_ns_;
   s.has_prev = has_prev_;
   s.stats = stats_;
+  s.removed_trajectories = removed_trajectories_;
   return s;
 }
 
@@ -222,6 +223,30 @@ void ObjectTracker::SetState(State state) {
   prev_timestamp_ns_ = state.prev_timestamp_ns;
   has_prev_ = state.has_prev;
   stats_ = state.stats;
+  removed_trajectories_ = std::move(state.removed_trajectories);
+}
+
+ObjectTrajectory ObjectTracker::TrajectoryOf(const TrackedObject& o) {
+  ObjectTrajectory t;
+  t.object_id = o.id;
+  t.class_id = o.class_id;
+  t.instance_id = o.instance_id;
+  t.cluster_id = o.cluster_id;
+  t.poses.reserve(o.settled_poses.size() + o.history.size());
+  t.poses.insert(t.poses.end(), o.settled_poses.begin(), o.settled_poses.end());
+  for (const ObjectPoseSample& s : o.history) {
+    t.poses.push_back({s.frame_index, s.timestamp_ns, s.world_from_object});
+  }
+  return t;
+}
+
+std::vector<ObjectTrajectory> ObjectTracker::Trajectories() const {
+  std::vector<ObjectTrajectory> out(removed_trajectories_.begin(), removed_trajectories_.end());
+  for (const auto& [id, o] : objects_) out.push_back(TrajectoryOf(o));
+  std::sort(out.begin(), out.end(), [](const ObjectTrajectory& a, const ObjectTrajectory& b) {
+    return a.object_id < b.object_id;
+  });
+  return out;
 }
 
 ObjectResult ObjectTracker::ToResult(const TrackedObject& o) {
@@ -248,10 +273,20 @@ void ObjectTracker::RecordPose(const FrameContext& ctx, TrackedObject* o) {
   s.timestamp_ns = ctx.frame.timestamp_ns;
   s.world_from_object = o->world_from_object;
   s.twist_step = o->twist_step;
+  s.held = o->stationary;
   s.observations = std::move(o->pending_observations);
   o->pending_observations.clear();
   o->history.push_back(std::move(s));
-  while (static_cast<int>(o->history.size()) > options_.max_history) o->history.pop_front();
+  while (static_cast<int>(o->history.size()) > options_.max_history) {
+    const ObjectPoseSample& oldest = o->history.front();
+    o->settled_poses.push_back({oldest.frame_index, oldest.timestamp_ns, oldest.world_from_object});
+    o->history.pop_front();
+  }
+  while (!o->settled_poses.empty() &&
+         static_cast<int>(o->settled_poses.size() + o->history.size()) >
+             options_.max_trajectory_poses) {
+    o->settled_poses.pop_front();
+  }
 }
 
 void ObjectTracker::AddNewPoints(const FrameContext& ctx,
@@ -936,6 +971,12 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
     }
     if (o.frames_lost > options_.max_frames_lost) {
       ++stats_.removed;
+      if (options_.max_removed_trajectories > 0) {
+        removed_trajectories_.push_back(TrajectoryOf(o));
+        while (static_cast<int>(removed_trajectories_.size()) > options_.max_removed_trajectories) {
+          removed_trajectories_.pop_front();
+        }
+      }
       it = objects_.erase(it);
       continue;
     }

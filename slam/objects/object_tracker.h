@@ -66,8 +66,29 @@ struct ObjectPoseSample {
   int64_t timestamp_ns = 0;
   geometry::SE3d world_from_object;
   geometry::Vector6d twist_step = geometry::Vector6d::Zero();  // into this frame, world, per frame
+  // The object was held stationary in this frame (its pose is the previous
+  // frame's; the dynamic BA keeps such poses fixed).
+  bool held = false;
   // The object's points observed in this frame (for the dynamic BA).
   std::vector<ObjectPointObservation> observations;
+};
+
+// One pose of an object's trajectory (ObjectTrajectory).
+struct TimedObjectPose {
+  int64_t frame_index = 0;
+  int64_t timestamp_ns = 0;
+  geometry::SE3d world_from_object;
+};
+
+// The whole trajectory of one object, as the dynamic BA last left it: the
+// poses that fell out of its bounded `history`, then the history
+// (ObjectTracker::Trajectories).
+struct ObjectTrajectory {
+  int64_t object_id = 0;
+  int class_id = 0;
+  int instance_id = 0;  // the last one seen
+  int64_t cluster_id = 0;
+  std::vector<TimedObjectPose> poses;  // oldest first
 };
 
 // TrackedObject::cluster_id of a lost object whose cluster was taken over by
@@ -98,6 +119,9 @@ struct TrackedObject {
   int64_t last_seen_frame = 0;
   cv::Rect2d last_box;
   std::deque<ObjectPoseSample> history;  // most recent last, bounded
+  // The poses that left `history` (oldest first), so that the object's whole
+  // trajectory survives; bounded by ObjectTrackerOptions::max_trajectory_poses.
+  std::deque<TimedObjectPose> settled_poses;
   int64_t next_point_id = 1;
   // Observations of the current frame, moved into the history by RecordPose.
   std::vector<ObjectPointObservation> pending_observations;
@@ -232,6 +256,11 @@ struct ObjectTrackerOptions {
   double flow_agreement_px = 4.0;
   double flow_agreement_ratio = 0.5;
   int max_history = 300;
+  // The trajectories kept for Trajectories(): at most this many poses per
+  // object (oldest dropped; 18000 = 30 min at 10 Hz), and the trajectories of
+  // at most this many removed objects (oldest removal dropped).
+  int max_trajectory_poses = 18000;
+  int max_removed_trajectories = 500;
   // Stationarity (parked cars). A step is "still" when the zero twist
   // explains the inlier observations about as well as the estimate,
   //   Σ ‖r_j(0)/σ‖² − Σ ‖r_j(ξ*)/σ‖² < χ²_k(stationary_confidence),
@@ -296,6 +325,9 @@ class ObjectTracker {
   absl::StatusOr<std::vector<ObjectResult>> Process(const ObjectFrameInput& frame);
 
   const std::map<int64_t, TrackedObject>& objects() const { return objects_; }
+  // The trajectory of every object, the removed ones (see
+  // max_removed_trajectories) and the current ones, ordered by object id.
+  std::vector<ObjectTrajectory> Trajectories() const;
   const ObjectTrackerStats& last_stats() const { return stats_; }
   // Lets the dynamic bundle adjustment write back refined poses and points.
   TrackedObject* mutable_object(int64_t id);
@@ -309,12 +341,15 @@ class ObjectTracker {
     int64_t prev_timestamp_ns = 0;
     bool has_prev = false;
     ObjectTrackerStats stats;
+    std::deque<ObjectTrajectory> removed_trajectories;  // oldest removal first
   };
   State GetState() const;
   void SetState(State state);
 
   // Converts a tracked object to the engine's per-frame result.
   static ObjectResult ToResult(const TrackedObject& object);
+  // The object's whole trajectory (settled_poses, then history).
+  static ObjectTrajectory TrajectoryOf(const TrackedObject& object);
 
  private:
   struct FrameContext;
@@ -364,6 +399,7 @@ class ObjectTracker {
   int64_t prev_timestamp_ns_ = 0;
   bool has_prev_ = false;
   ObjectTrackerStats stats_;
+  std::deque<ObjectTrajectory> removed_trajectories_;
 };
 
 }  // namespace twist::objects

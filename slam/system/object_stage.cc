@@ -390,6 +390,25 @@ Enum ReadEnum(BinaryReader* r, int32_t max_value) {
   return static_cast<Enum>(v);
 }
 
+template <typename Container>
+void WriteTimedPoses(const Container& poses, BinaryWriter* w) {
+  w->Pod<uint64_t>(poses.size());
+  for (const objects::TimedObjectPose& p : poses) {
+    w->Pod(p.frame_index);
+    w->Pod(p.timestamp_ns);
+    w->Pose(p.world_from_object);
+  }
+}
+std::vector<objects::TimedObjectPose> ReadTimedPoses(BinaryReader* r) {
+  std::vector<objects::TimedObjectPose> poses(r->Count(72));
+  for (objects::TimedObjectPose& p : poses) {
+    p.frame_index = r->Pod<int64_t>();
+    p.timestamp_ns = r->Pod<int64_t>();
+    p.world_from_object = r->Pose();
+  }
+  return poses;
+}
+
 void WriteTrackedObject(const objects::TrackedObject& o, BinaryWriter* w) {
   w->Pod(o.id);
   w->Pod(o.cluster_id);
@@ -420,6 +439,7 @@ void WriteTrackedObject(const objects::TrackedObject& o, BinaryWriter* w) {
     w->Pose(s.world_from_object);
     WriteVec(s.twist_step, w);
     WriteObservations(s.observations, w);
+    w->Pod<uint8_t>(s.held);  // format 6
   }
   w->Pod(o.next_point_id);
   WriteObservations(o.pending_observations, w);
@@ -429,6 +449,7 @@ void WriteTrackedObject(const objects::TrackedObject& o, BinaryWriter* w) {
   w->Pod(o.last_sigma_px);
   w->Pod<uint8_t>(o.twist_covariance_valid);  // format 5
   for (int i = 0; i < 36; ++i) w->Pod<double>(o.twist_covariance.data()[i]);
+  WriteTimedPoses(o.settled_poses, w);  // format 6
 }
 
 objects::TrackedObject ReadTrackedObject(BinaryReader* r, uint32_t version) {
@@ -466,6 +487,7 @@ objects::TrackedObject ReadTrackedObject(BinaryReader* r, uint32_t version) {
     s.world_from_object = r->Pose();
     s.twist_step = ReadVec<geometry::Vector6d>(r);
     s.observations = ReadObservations(r);
+    if (version >= 6) s.held = r->Pod<uint8_t>() != 0;
     o.history.push_back(std::move(s));
   }
   o.next_point_id = r->Pod<int64_t>();
@@ -478,6 +500,10 @@ objects::TrackedObject ReadTrackedObject(BinaryReader* r, uint32_t version) {
     o.twist_covariance_valid = r->Pod<uint8_t>() != 0;
     for (int i = 0; i < 36; ++i) o.twist_covariance.data()[i] = r->Pod<double>();
     if (!o.twist_covariance.allFinite()) r->Fail();
+  }
+  if (version >= 6) {
+    const std::vector<objects::TimedObjectPose> settled = ReadTimedPoses(r);
+    o.settled_poses.assign(settled.begin(), settled.end());
   }
   return o;
 }
@@ -588,6 +614,14 @@ void ObjectStage::Write(BinaryWriter* w) const {
   w->Pod<int32_t>(ts.stats.reidentified);
   w->Pod<int32_t>(ts.stats.lost);
   w->Pod<int32_t>(ts.stats.removed);
+  w->Pod<uint64_t>(ts.removed_trajectories.size());  // format 6
+  for (const objects::ObjectTrajectory& t : ts.removed_trajectories) {
+    w->Pod(t.object_id);
+    w->Pod<int32_t>(t.class_id);
+    w->Pod<int32_t>(t.instance_id);
+    w->Pod(t.cluster_id);
+    WriteTimedPoses(t.poses, w);
+  }
   // Axis joints, the RANSAC generator, the BA window.
   w->Pod<uint64_t>(axis_joints_.size());
   for (const auto& [cluster, joint] : axis_joints_) {
@@ -664,6 +698,18 @@ absl::Status ObjectStage::Read(BinaryReader* r, uint32_t version) {
   ts.stats.reidentified = r->Pod<int32_t>();
   ts.stats.lost = r->Pod<int32_t>();
   ts.stats.removed = r->Pod<int32_t>();
+  if (version >= 6) {
+    const uint64_t nt = r->Count(32);
+    for (uint64_t k = 0; k < nt && r->ok(); ++k) {
+      objects::ObjectTrajectory t;
+      t.object_id = r->Pod<int64_t>();
+      t.class_id = r->Pod<int32_t>();
+      t.instance_id = r->Pod<int32_t>();
+      t.cluster_id = r->Pod<int64_t>();
+      t.poses = ReadTimedPoses(r);
+      ts.removed_trajectories.push_back(std::move(t));
+    }
+  }
   if (!r->ok() || (!ts.objects.empty() && ts.next_object_id <= ts.objects.rbegin()->first)) {
     return corrupt("objects");
   }
@@ -751,6 +797,18 @@ void ObjectStage::AddToSnapshot(MapSnapshot* snapshot) const {
       }
     }
     snapshot->clusters.push_back(std::move(out));
+  }
+  for (const objects::ObjectTrajectory& t : tracker_.Trajectories()) {
+    MapSnapshot::Object out;
+    out.id = t.object_id;
+    out.class_id = t.class_id;
+    out.instance_id = t.instance_id;
+    out.cluster_id = t.cluster_id;
+    out.trajectory.reserve(t.poses.size());
+    for (const objects::TimedObjectPose& p : t.poses) {
+      out.trajectory.emplace_back(p.timestamp_ns, p.world_from_object);
+    }
+    snapshot->objects.push_back(std::move(out));
   }
   for (MapSnapshot::Point& p : snapshot->points) {
     if (auto it = planes_.find(p.class_id); it != planes_.end() && it->second.cluster_id >= 0) {

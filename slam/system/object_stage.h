@@ -102,7 +102,9 @@ class ObjectStage {
   // flag); a plane class's cluster with its fitted plane; a dynamic cluster
   // with the pose history of the object that holds it, oldest first, as the
   // dynamic BA left it (bounded by ObjectTrackerOptions::max_history). Static
-  // points of a plane class are labelled with that class's cluster.
+  // points of a plane class are labelled with that class's cluster. Adds the
+  // whole trajectory of every object, removed ones included
+  // (ObjectTracker::Trajectories).
   void AddToSnapshot(MapSnapshot* snapshot) const;
 
   // Persistence (SlamSystem::Save/Load): everything that evolves from frame

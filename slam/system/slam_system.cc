@@ -37,7 +37,10 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // 5: + each tracked object's twist covariance (the constant-velocity filter,
 // ObjectTrackerOptions::acceleration_sigma_mps2). Version 4 files still load
 // (the filter restarts at each object's next step).
-constexpr uint32_t kFormatVersion = 5;
+// 6: + each object's settled poses (those older than its history) and the
+// trajectories of removed objects (ObjectTracker::Trajectories). Older files
+// load with trajectories that start at the history's first pose.
+constexpr uint32_t kFormatVersion = 6;
 
 tracking::TrackerOptions TrackerOptionsFrom(const SlamOptions& o) {
   tracking::TrackerOptions t;

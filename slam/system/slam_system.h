@@ -45,11 +45,24 @@ struct MapSnapshot {
     int instance_id = 0;
     bool is_dynamic = false;
     std::optional<Eigen::Vector4d> plane;
-    std::vector<std::pair<int64_t, geometry::SE3d>> trajectory;  // (timestamp_ns, world_from_object)
+    std::vector<std::pair<int64_t, geometry::SE3d>>
+        trajectory;  // (timestamp_ns, world_from_object)
+  };
+  // The whole trajectory of a tracked object (also of one removed since), as
+  // the dynamic BA left it: its refined counterpart of the per-frame
+  // ObjectResult poses, with the same object id.
+  struct Object {
+    int64_t id = 0;
+    int class_id = 0;
+    int instance_id = 0;     // the last one seen
+    int64_t cluster_id = 0;  // the last one held (-1: none)
+    std::vector<std::pair<int64_t, geometry::SE3d>>
+        trajectory;  // (timestamp_ns, world_from_object)
   };
   std::vector<Point> points;
   std::vector<KeyFrame> keyframes;
   std::vector<Cluster> clusters;
+  std::vector<Object> objects;  // ordered by id
 };
 
 class SlamSystem {

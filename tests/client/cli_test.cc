@@ -136,6 +136,7 @@ TEST(Cli, ServerRunAndMapEndToEnd) {
   for (const char* file : {"camera.txt",
                            "camera_tum.txt",
                            "objects.txt",
+                           "objects_refined.txt",
                            "summary.json",
                            "updates.jsonl",
                            "map.ply"}) {
@@ -145,6 +146,14 @@ TEST(Cli, ServerRunAndMapEndToEnd) {
   // The server and the embedded engine give the same trajectory.
   EXPECT_EQ(ReadAll(out_remote + "/camera.txt"), ReadAll(out_local + "/camera.txt"));
   EXPECT_EQ(ReadAll(out_remote + "/objects.txt"), ReadAll(out_local + "/objects.txt"));
+  // The refined trajectories come through GetMap the same as from the
+  // embedded engine's snapshot.
+  const std::string refined = ReadAll(out_remote + "/objects_refined.txt");
+  EXPECT_EQ(refined, ReadAll(out_local + "/objects_refined.txt"));
+  const std::string online = ReadAll(out_remote + "/objects.txt");
+  EXPECT_GT(std::count(online.begin(), online.end(), '\n'), 0);
+  EXPECT_EQ(std::count(refined.begin(), refined.end(), '\n'),
+            std::count(online.begin(), online.end(), '\n'));
   const std::string updates = ReadAll(out_remote + "/updates.jsonl");
   EXPECT_EQ(std::count(updates.begin(), updates.end(), '\n'), 6);
   EXPECT_THAT(ReadAll(out_remote + "/summary.json"), HasSubstr("\"mode\": \"server"));

@@ -152,6 +152,55 @@ TEST(SlamConvert, MapChunksReassembleAndExportToPly) {
   EXPECT_EQ(std::count(ply.begin(), ply.end(), '\n'), 13 + 5001);
 }
 
+// Object trajectories longer than a chunk's share travel in pieces, and come
+// back whole and in order.
+TEST(SlamConvert, LongObjectTrajectoriesReassemble) {
+  MapSnapshot map;
+  for (int64_t id : {2, 5, 9}) {
+    MapSnapshot::Object o;
+    o.id = id;
+    o.class_id = 26;
+    o.instance_id = static_cast<int>(id) + 100;
+    o.cluster_id = id == 5 ? -1 : id * 10;
+    const int n = id == 5 ? 3000 : 7;
+    for (int k = 0; k < n; ++k) {
+      o.trajectory.emplace_back(
+          1000 + k, geometry::SE3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(k, id, 0)));
+    }
+    map.objects.push_back(std::move(o));
+  }
+  server::MapChunkOptions options;
+  options.max_chunk_bytes = 64 << 10;
+  const std::vector<pb::MapChunk> chunks = server::MapToChunks(map, options);
+  int pieces = 0;
+  for (const pb::MapChunk& c : chunks) {
+    EXPECT_LE(c.ByteSizeLong(), static_cast<size_t>(options.max_chunk_bytes) + 64);
+    pieces += c.objects_size();
+  }
+  EXPECT_GT(pieces, 4);  // the 3000-pose trajectory is split
+  EXPECT_EQ(chunks[0].summary().num_objects(), 3);
+  const MapSnapshot back = MapFromChunks(chunks);
+  ASSERT_EQ(back.objects.size(), 3u);
+  for (size_t i = 0; i < 3; ++i) {
+    const MapSnapshot::Object& a = map.objects[i];
+    const MapSnapshot::Object& b = back.objects[i];
+    EXPECT_EQ(b.id, a.id);
+    EXPECT_EQ(b.class_id, 26);
+    EXPECT_EQ(b.instance_id, a.instance_id);
+    EXPECT_EQ(b.cluster_id, a.cluster_id);
+    ASSERT_EQ(b.trajectory.size(), a.trajectory.size());
+    for (size_t k = 0; k < a.trajectory.size(); ++k) {
+      EXPECT_EQ(b.trajectory[k].first, a.trajectory[k].first);
+      EXPECT_EQ(b.trajectory[k].second.translation(), a.trajectory[k].second.translation());
+    }
+  }
+  options.skip_objects = true;
+  const std::vector<pb::MapChunk> none = server::MapToChunks(map, options);
+  ASSERT_EQ(none.size(), 1u);
+  EXPECT_EQ(none[0].objects_size(), 0);
+  EXPECT_EQ(none[0].summary().num_objects(), 0);
+}
+
 TEST(SlamClient, MisuseIsReportedNotFatal) {
   EXPECT_TRUE(absl::IsInvalidArgument(SlamClient::Connect(ClientOptions()).status()));
   ClientOptions options;

@@ -62,9 +62,15 @@ void MakeDataset(const std::string& root) {
 }
 
 // Writes a run whose outputs equal the ground truth (objects in their own
-// frames: est = gt · X), optionally with a camera drift.
-void WriteRun(const std::string& dir, double extra_forward_per_frame, int skip_object6_from) {
+// frames: est = gt · X), optionally with a camera drift. With `refined`, the
+// per-frame object poses drift sideways by 5 cm per frame and the refined
+// trajectories (objects_refined.txt) are exact.
+void WriteRun(const std::string& dir,
+              double extra_forward_per_frame,
+              int skip_object6_from,
+              bool refined = false) {
   RunOutputWriter out;
+  std::vector<TimedObjectTrajectory> trajectories(2);
   SE3d est = CameraPose(0);
   const SE3d x(SO3d::Exp(Eigen::Vector3d(0.1, 0.2, 0.3)), Eigen::Vector3d(0.5, -0.2, 1.0));
   for (int i = 0; i < kN; ++i) {
@@ -86,9 +92,22 @@ void WriteRun(const std::string& dir, double extra_forward_per_frame, int skip_o
       o.state = ObjectState::kTracked;
       o.world_from_object = ObjectPose(id, i) * x;
       if (id == 5) o.twist_in_world << 0, 0, 8.0, 0, 0, 0;
+      TimedObjectTrajectory& t = trajectories[id == 5 ? 0 : 1];
+      t.track_id = o.id;
+      t.class_id = o.class_id;
+      t.instance_id = o.instance_id;
+      t.poses.emplace_back(r.timestamp_ns, o.world_from_object);
+      if (refined) {
+        o.world_from_object = SE3d(SO3d(), Eigen::Vector3d(0.05 * i, 0, 0)) * o.world_from_object;
+      }
       r.objects.push_back(o);
     }
     out.Add(r);
+  }
+  if (refined) {
+    // A pose at a time that is no frame of the run is dropped.
+    trajectories[0].poses.emplace_back(kN * 100'000'000LL + 1, SE3d());
+    out.SetRefinedObjects(trajectories);
   }
   ASSERT_TRUE(out.Write(dir, RunInfo()).ok());
 }
@@ -146,6 +165,43 @@ TEST(Evaluation, KnownCameraDriftAndPartialCoverage) {
   EXPECT_DOUBLE_EQ(eval->objects->objects[1].coverage, 9.0 / 12.0);
   EXPECT_DOUBLE_EQ(eval->objects->objects[1].visible_coverage, 1.0);
   EXPECT_DOUBLE_EQ(eval->objects->all.coverage, 21.0 / 24.0);
+}
+
+// objects_refined.txt (RunOutputWriter::SetRefinedObjects) is scored with
+// RunEvalOptions::objects_file; its twists are the central differences of the
+// poses, exact for the constant-velocity car.
+TEST(Evaluation, RefinedTrajectoriesAreScoredOnRequest) {
+  ScratchDir dir;
+  MakeDataset(dir / "data");
+  WriteRun(dir / "run", 0.0, kN, /*refined=*/true);
+  auto seq = OpenSequence(dir / "data", "kitti-tracking", "0000");
+  ASSERT_TRUE(seq.ok()) << seq.status();
+  auto online = EvaluateRunDirectory(**seq, dir / "run", SmallMaskOptions());
+  ASSERT_TRUE(online.ok()) << online.status();
+  EXPECT_GT(online->objects->objects[0].ate, 0.1);
+  RunEvalOptions options = SmallMaskOptions();
+  options.objects_file = "objects_refined.txt";
+  auto refined = EvaluateRunDirectory(**seq, dir / "run", options);
+  ASSERT_TRUE(refined.ok()) << refined.status();
+  ASSERT_EQ(refined->objects->objects.size(), 2u);
+  for (const ObjectMetrics& m : refined->objects->objects) {
+    EXPECT_DOUBLE_EQ(m.coverage, 1.0);
+    EXPECT_NEAR(m.ate, 0, 1e-6);
+    EXPECT_NEAR(m.speed_error_kmh, 0, 1e-5);
+  }
+  EXPECT_NEAR(refined->objects->objects[0].rpe_t_per_m, 0, 1e-6);
+  EXPECT_THAT(FormatRunEvaluation(*refined), HasSubstr("objects from objects_refined.txt"));
+  EXPECT_THAT(RunEvaluationJson(*refined), HasSubstr("\"objects_file\": \"objects_refined.txt\""));
+  auto rows = ReadObjectTracks(dir / "run/objects_refined.txt");
+  ASSERT_TRUE(rows.ok()) << rows.status();
+  EXPECT_EQ(rows->size(), 2u * kN);
+  for (const ObjectTrackRow& row : *rows) {
+    if (row.track_id != 105) continue;
+    EXPECT_NEAR(row.twist_in_world[2], 8.0, 1e-9) << "frame " << row.frame;
+  }
+  // Without SetRefinedObjects there is no such file.
+  WriteRun(dir / "plain", 0.0, kN);
+  EXPECT_FALSE(std::filesystem::exists(dir / "plain/objects_refined.txt"));
 }
 
 TEST(Evaluation, Failures) {

@@ -492,6 +492,65 @@ std::pair<int64_t, SE3d> TrackCar(ObjectTracker* tracker,
   return {id, first};
 }
 
+// Trajectories(): an object's whole trajectory, the poses older than its
+// bounded history included (up to max_trajectory_poses), kept after the
+// object is removed (up to max_removed_trajectories) and through
+// GetState/SetState.
+TEST(ObjectTracker, TrajectoriesKeepOldPosesAndRemovedObjects) {
+  for (int max_removed : {2, 0}) {
+    CarSequence seq(0.0, 3);
+    ObjectTrackerOptions options;
+    options.max_history = 4;
+    options.max_trajectory_poses = 9;
+    options.max_removed_trajectories = max_removed;
+    ObjectTracker tracker(seq.camera(), options);
+    std::vector<std::pair<int64_t, SE3d>> reported;  // (timestamp, pose)
+    int64_t id = -1;
+    for (int i = 0; i < 12; ++i) {
+      const ObjectFrameInput f = seq.Next(11, true);
+      const auto r = tracker.Process(f);
+      ASSERT_TRUE(r.ok());
+      ASSERT_EQ(r->size(), 1u);
+      id = (*r)[0].id;
+      reported.emplace_back(f.timestamp_ns, (*r)[0].world_from_object);
+    }
+    EXPECT_EQ(tracker.objects().at(id).history.size(), 4u);
+    const std::vector<ObjectTrajectory> live = tracker.Trajectories();
+    ASSERT_EQ(live.size(), 1u);
+    EXPECT_EQ(live[0].object_id, id);
+    EXPECT_EQ(live[0].class_id, tracker.objects().at(id).class_id);
+    EXPECT_EQ(live[0].cluster_id, 11);
+    ASSERT_EQ(live[0].poses.size(), 9u);  // the last 9 of 12 frames
+    for (size_t k = 0; k < 9; ++k) {
+      EXPECT_EQ(live[0].poses[k].frame_index, static_cast<int64_t>(k + 3));
+      EXPECT_EQ(live[0].poses[k].timestamp_ns, reported[k + 3].first);
+      EXPECT_EQ(live[0].poses[k].world_from_object.translation(),
+                reported[k + 3].second.translation());
+    }
+    // Hidden until removed.
+    for (int i = 0; i <= options.max_frames_lost; ++i) {
+      ASSERT_TRUE(tracker.Process(seq.Next(11, false)).ok());
+    }
+    EXPECT_TRUE(tracker.objects().empty());
+    ObjectTracker restored(seq.camera(), options);
+    restored.SetState(tracker.GetState());
+    for (const ObjectTracker* t : {&tracker, &restored}) {
+      const std::vector<ObjectTrajectory> after = t->Trajectories();
+      if (max_removed == 0) {
+        EXPECT_TRUE(after.empty());
+        continue;
+      }
+      ASSERT_EQ(after.size(), 1u);
+      EXPECT_EQ(after[0].object_id, id);
+      ASSERT_EQ(after[0].poses.size(), 9u);
+      for (size_t k = 0; k < 9; ++k) {
+        EXPECT_EQ(after[0].poses[k].world_from_object.translation(),
+                  live[0].poses[k].world_from_object.translation());
+      }
+    }
+  }
+}
+
 TEST(ObjectTracker, LostThenReidentifiedUnderANewClusterId) {
   CarSequence seq(0.0, 3);
   ObjectTrackerOptions options;

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "slam/io/metrics.h"
+#include "slam/io/run_output.h"
 #include "slam/sim/depth_truth.h"
 #include "slam/sim/labels.h"
 #include "slam/sim/renderer.h"
@@ -291,26 +292,55 @@ TEST(ObjectsEndToEnd, TheMapSnapshotCarriesTheClusters) {
   }
   EXPECT_GT(road_points, 20);
 
-  // The trajectories as the dynamic BA left them, scored like the online
-  // poses (track id = cluster id).
-  std::map<int64_t, int64_t> frame_of;
-  for (size_t k = 0; k < run.timestamps.size(); ++k) frame_of[run.timestamps[k]] = k;
-  std::vector<io::ObjectTrackRow> refined;
-  for (const MapSnapshot::Cluster& c : snap.clusters) {
-    for (const auto& [t_ns, pose] : c.trajectory) {
-      io::ObjectTrackRow row;
-      row.frame = frame_of.at(t_ns);
-      row.track_id = c.id;
-      row.class_id = c.class_id;
-      row.world_from_object = pose;
-      row.instance_id = c.instance_id;
-      refined.push_back(row);
+  // The objects' whole trajectories: one per object reported, with a pose at
+  // exactly the frames it was reported tracked or new, the last one as
+  // reported (earlier ones as the dynamic BA refined them since).
+  std::map<int64_t, std::map<int64_t, SE3d>> reported;  // id -> timestamp -> pose
+  std::map<int64_t, int> class_of;
+  for (const FrameResult& r : run.results) {
+    for (const ObjectResult& o : r.objects) {
+      if (o.state == ObjectState::kLost) continue;
+      reported[o.id][r.timestamp_ns] = o.world_from_object;
+      class_of[o.id] = o.class_id;
     }
   }
+  ASSERT_EQ(snap.objects.size(), reported.size());
+  double refined_by = 0.0;
+  for (size_t k = 0; k < snap.objects.size(); ++k) {
+    const MapSnapshot::Object& o = snap.objects[k];
+    if (k > 0) {
+      EXPECT_GT(o.id, snap.objects[k - 1].id);
+    }
+    ASSERT_TRUE(reported.count(o.id)) << "object " << o.id;
+    EXPECT_EQ(o.class_id, class_of.at(o.id));
+    const std::map<int64_t, SE3d>& online = reported.at(o.id);
+    ASSERT_EQ(o.trajectory.size(), online.size()) << "object " << o.id;
+    size_t j = 0;
+    for (const auto& [t_ns, pose] : online) {
+      EXPECT_EQ(o.trajectory[j].first, t_ns);
+      const double d = (o.trajectory[j].second.translation() - pose.translation()).norm();
+      EXPECT_LT(d, 1.0) << "object " << o.id << " at " << t_ns;
+      refined_by = std::max(refined_by, d);
+      ++j;
+    }
+  }
+  EXPECT_GT(refined_by, 1e-6);  // the BA did move poses
+
+  // The trajectories scored like the online poses, through the run output
+  // writer (objects_refined.txt).
+  io::RunOutputWriter writer;
+  for (const FrameResult& r : run.results) writer.Add(r);
+  std::vector<io::TimedObjectTrajectory> trajectories;
+  for (const MapSnapshot::Object& o : snap.objects) {
+    trajectories.push_back({o.id, o.class_id, o.instance_id, o.trajectory});
+  }
+  writer.SetRefinedObjects(trajectories);
+  const std::vector<io::ObjectTrackRow> refined = writer.RefinedObjectRows();
+  EXPECT_EQ(refined.size(), writer.ObjectRows().size());
   auto eval =
       io::EvaluateObjects(run.gt, refined, run.timestamps, io::ObjectEvalOptions{}, &run.pixels);
   ASSERT_TRUE(eval.ok()) << eval.status();
-  std::printf("[driving, snapshot trajectories]\n%s", io::FormatObjectTable(*eval).c_str());
+  std::printf("[driving, refined trajectories]\n%s", io::FormatObjectTable(*eval).c_str());
 }
 
 TEST(ObjectsEndToEnd, FollowBrakingAndDeterminism) {
