@@ -15,6 +15,10 @@ std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
   CHECK(problem != nullptr);
   std::vector<ObjectBaLink> links;
   for (const auto& [id, object] : tracker.objects()) {
+    // A lost object has no new observations: solving its window again under
+    // a gauge that slides along its history only drifts its tail (on the
+    // rendered scenes the last poses of lost cars ran off by metres).
+    if (object.state == ObjectState::kLost) continue;
     std::vector<const ObjectPoseSample*> samples;
     for (const ObjectPoseSample& s : object.history) {
       if (keyframe_of_frame.count(s.frame_index) > 0) samples.push_back(&s);
@@ -39,11 +43,18 @@ std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
       link.point_ids.push_back(p.id);
     }
     if (ba.points_in_object.empty()) continue;
-    for (const ObjectPoseSample* s : samples) {
+    for (size_t k = 0; k < samples.size(); ++k) {
+      const ObjectPoseSample* s = samples[k];
       BaObjectFrame f;
       f.keyframe = keyframe_of_frame.at(s->frame_index);
       f.world_from_object = s->world_from_object;
-      f.fixed = ba.frames.empty();
+      // The first frame fixes the gauge of the points. A frame in which the
+      // tracker held the object stationary repeats the previous pose: both
+      // stay as they are, so that the refined trajectory does not move a
+      // parked car.
+      const bool held_next = k + 1 < samples.size() && samples[k + 1]->held &&
+                             samples[k + 1]->frame_index == s->frame_index + 1;
+      f.fixed = k == 0 || s->held || held_next;
       ba.frames.push_back(f);
       link.frame_indices.push_back(s->frame_index);
       for (const ObjectPointObservation& o : s->observations) {

@@ -36,10 +36,12 @@ struct ObjectBaOptions {
   int twist_steps = 2;
 };
 
-// For every tracked object, the history samples whose frame index is in
-// `keyframe_of_frame` (frame index -> index into problem->keyframes; pass the
-// temporal set) become BaObjectFrames (the oldest one fixed: the gauge of the
-// object's points), and their inlier observations become dynamic terms.
+// For every tracked object (lost ones are left out), the history samples
+// whose frame index is in `keyframe_of_frame` (frame index -> index into
+// problem->keyframes; pass the temporal set) become BaObjectFrames (the
+// oldest one fixed: the gauge of the object's points; also fixed: the frames
+// in which the tracker held the object stationary and the frame each hold
+// started from), and their inlier observations become dynamic terms.
 std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
                                                 const std::map<int64_t, int>& keyframe_of_frame,
                                                 const ObjectBaOptions& options,

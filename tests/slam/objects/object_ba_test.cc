@@ -124,5 +124,67 @@ TEST(ObjectBa, TheWrittenBackTwistIsTheMeanOfTheLastSteps) {
   EXPECT_LT(speed_error[2], speed_error[1]);
 }
 
+// A parked car's frames in which the tracker held it (and the frame each hold
+// started from) enter the BA fixed: the refined trajectory keeps it still.
+// A lost object is left out of the BA (no new observations; refining its
+// tail again and again under a sliding gauge only drifts it).
+TEST(ObjectBa, HeldFramesStayAndLostObjectsAreLeftOut) {
+  CarSequence parked(0.5, 21);
+  parked.set_step(Vector6d::Zero());
+  ObjectTracker tracker(parked.camera(), ObjectTrackerOptions{});
+  DynamicBaProblem problem;
+  std::map<int64_t, int> keyframe_of_frame;
+  std::vector<SE3d> gt;
+  TrackWindow(&parked, 12, &tracker, &problem, &keyframe_of_frame, &gt);
+  ASSERT_EQ(tracker.objects().size(), 1u);
+  const TrackedObject& o = tracker.objects().begin()->second;
+  ASSERT_EQ(o.history.size(), 12u);
+  int held = 0;
+  for (const ObjectPoseSample& s : o.history) held += s.held;
+  ASSERT_GE(held, 9);
+  const std::vector<SE3d> before = [&] {
+    std::vector<SE3d> poses;
+    for (const ObjectPoseSample& s : o.history) poses.push_back(s.world_from_object);
+    return poses;
+  }();
+  const auto links = AddTrackedObjectsToBa(tracker, keyframe_of_frame, ObjectBaOptions{}, &problem);
+  ASSERT_EQ(links.size(), 1u);
+  const BaObject& ba = problem.objects[0];
+  ASSERT_EQ(ba.frames.size(), 12u);
+  for (size_t k = 0; k < 12; ++k) {
+    const bool next_held = k + 1 < 12 && o.history[k + 1].held;
+    EXPECT_EQ(ba.frames[k].fixed, k == 0 || o.history[k].held || next_held) << "frame " << k;
+  }
+  const auto summary = SolveDynamicBa(&problem, DynamicBaOptions{});
+  ASSERT_TRUE(summary.ok() && summary->usable);
+  ApplyBaToTrackedObjects(problem, links, ObjectBaOptions{}, &tracker);
+  const TrackedObject& after = tracker.objects().begin()->second;
+  for (size_t k = 0; k < 12; ++k) {
+    const bool next_held = k + 1 < 12 && after.history[k + 1].held;
+    if (!after.history[k].held && !next_held) continue;
+    EXPECT_EQ(after.history[k].world_from_object.translation(), before[k].translation()) << k;
+    if (after.history[k].held) {
+      EXPECT_EQ(after.history[k].world_from_object.translation(),
+                after.history[k - 1].world_from_object.translation())
+          << k;
+    }
+  }
+
+  // A moving car tracked for 8 frames, then undetected: lost, left out.
+  CarSequence moving(0.5, 22);
+  ObjectTracker tracker2(moving.camera(), ObjectTrackerOptions{});
+  DynamicBaProblem problem2;
+  std::map<int64_t, int> keyframe_of_frame2;
+  std::vector<SE3d> gt2;
+  TrackWindow(&moving, 8, &tracker2, &problem2, &keyframe_of_frame2, &gt2);
+  EXPECT_EQ(
+      AddTrackedObjectsToBa(tracker2, keyframe_of_frame2, ObjectBaOptions{}, &problem2).size(), 1u);
+  problem2.objects.clear();
+  ASSERT_TRUE(tracker2.Process(moving.Next(5, false)).ok());
+  ASSERT_EQ(tracker2.objects().begin()->second.state, ObjectState::kLost);
+  EXPECT_TRUE(
+      AddTrackedObjectsToBa(tracker2, keyframe_of_frame2, ObjectBaOptions{}, &problem2).empty());
+}
+
 }  // namespace
 }  // namespace twist::objects
