@@ -152,6 +152,10 @@ absl::Status ObjectTrackerOptions::Validate() const {
   if (!(stationary_max_leave_speed_mps >= 0.0)) {
     return absl::InvalidArgumentError("object tracker needs stationary_max_leave_speed_mps >= 0");
   }
+  if (!(stationary_min_leave_support >= 0.0 && stationary_min_leave_support <= 1.0)) {
+    return absl::InvalidArgumentError(
+        "object tracker needs stationary_min_leave_support in [0, 1]");
+  }
   if (!(acceleration_sigma_mps2 >= 0.0) || !(angular_acceleration_sigma_radps2 > 0.0) ||
       !(max_step_sigma_px > 0.0) || !(filter_gate_confidence > 0.0) ||
       !(filter_gate_confidence < 1.0) || max_coast_frames < 0) {
@@ -678,6 +682,10 @@ bool ObjectTracker::Track(const FrameContext& ctx,
     if (o->stationary && significant && options_.stationary_max_leave_speed_mps > 0.0 &&
         speed > options_.stationary_max_leave_speed_mps) {
       return coast();  // no car starts that fast: a failed measurement
+    }
+    if (o->stationary && significant && speed >= options_.stationary_leave_speed_mps &&
+        est->num_inliers < options_.stationary_min_leave_support * o->last_num_inliers) {
+      return coast();  // a start seen by a few points only: an occlusion
     }
     if (o->stationary) {
       o->stationary = !(significant && speed >= options_.stationary_leave_speed_mps);

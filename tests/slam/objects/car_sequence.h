@@ -54,6 +54,9 @@ class CarSequence {
   // flow and the box show the car at world_offset · (true pose), as when the
   // flow and matches lock onto an occluder; the truth is unchanged.
   void set_measurement_glitch(const SE3d& world_offset) { glitch_ = world_offset; }
+  // Only the first n points are seen (keypoints and flow; 0: all), as when
+  // the car is mostly occluded.
+  void set_shown_points(size_t n) { shown_ = n; }
 
   // Frame i (advances the truth by one step after frame 0).
   ObjectFrameInput Next(int64_t cluster_id, bool detected) {
@@ -74,7 +77,7 @@ class CarSequence {
       const Eigen::Vector3d uvr =
           cam_.ProjectStereo(Eigen::Vector3d(camera_from_object * points_[k]));
       true_uv[k] = uvr.head<2>();
-      if (!detected) continue;
+      if (!detected || (shown_ > 0 && k >= shown_)) continue;
       Eigen::Vector2d uv = uvr.head<2>();
       double ur = uvr.z();
       if (noise_ > 0) {
@@ -94,7 +97,9 @@ class CarSequence {
     if (!prev_uv_.empty()) {
       cv::Mat owner(cam_.height, cam_.width, CV_32SC1, cv::Scalar(-1));
       for (size_t k = 0; k < points_.size(); ++k) {
-        const Eigen::Vector2d d = true_uv[k] - prev_uv_[k] + flow_bias_;
+        const bool hidden = shown_ > 0 && k >= shown_;  // no flow (NaN) there
+        const Eigen::Vector2d d = hidden ? Eigen::Vector2d(NAN, NAN)
+                                         : Eigen::Vector2d(true_uv[k] - prev_uv_[k] + flow_bias_);
         const int px = static_cast<int>(std::floor(prev_uv_[k].x()));
         const int py = static_cast<int>(std::floor(prev_uv_[k].y()));
         for (int dy = 0; dy <= 1; ++dy) {
@@ -140,6 +145,7 @@ class CarSequence {
   std::vector<Eigen::Vector2d> prev_uv_;
   Eigen::Vector2d flow_bias_ = Eigen::Vector2d::Zero();
   SE3d glitch_;
+  size_t shown_ = 0;
   int64_t index_ = 0;
 };
 
