@@ -70,9 +70,10 @@ std::vector<ObjectTrackRow> RunOutputWriter::RefinedObjectRows() const {
       row.class_id = t.class_id;
       row.world_from_object = *poses[i].second;
       row.instance_id = t.instance_id;
-      // Central difference over the neighbours (one-sided at the ends).
-      const size_t a = i > 0 ? i - 1 : 0;
-      const size_t b = std::min(poses.size() - 1, i + 1);
+      // Central difference over two rows either side (cut at the ends).
+      constexpr size_t kHalfWindow = 2;
+      const size_t a = i > kHalfWindow ? i - kHalfWindow : 0;
+      const size_t b = std::min(poses.size() - 1, i + kHalfWindow);
       if (b > a && poses[b].first > poses[a].first) {
         row.twist_in_world = ((*poses[b].second) * poses[a].second->Inverse()).Log() /
                              (static_cast<double>(poses[b].first - poses[a].first) * 1e-9);

@@ -529,6 +529,46 @@ TEST(RunOutput, WritesAllFilesReadableBack) {
   EXPECT_THAT(*summary, HasSubstr("\\\"x\\\""));
 }
 
+// objects_refined.txt: rows at the added frames only, ordered by frame, the
+// twist the central difference two rows either side (cut at the ends).
+TEST(RunOutput, RefinedRowsAndTheirTwists) {
+  ScratchDir dir;
+  RunOutputWriter out;
+  for (int i = 0; i < 6; ++i) {
+    FrameResult r;
+    r.index = i;
+    r.timestamp_ns = i * 100'000'000LL;
+    out.Add(r);
+  }
+  EXPECT_TRUE(out.RefinedObjectRows().empty());
+  TimedObjectTrajectory t;
+  t.track_id = 7;
+  t.class_id = 26;
+  t.instance_id = 3;
+  for (int i = 0; i < 6; ++i) {  // z = i^2: accelerating, no rotation
+    t.poses.emplace_back(
+        i * 100'000'000LL,
+        geometry::SE3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, i * i)));
+  }
+  t.poses.emplace_back(550'000'000LL, geometry::SE3d());  // not a frame: dropped
+  out.SetRefinedObjects({t});
+  const std::vector<ObjectTrackRow> rows = out.RefinedObjectRows();
+  ASSERT_EQ(rows.size(), 6u);
+  const double expected_vz[6] = {
+      4 / 0.2, 9 / 0.3, 16 / 0.4, (25 - 1) / 0.4, (25 - 4) / 0.3, (25 - 9) / 0.2};
+  for (int i = 0; i < 6; ++i) {
+    EXPECT_EQ(rows[i].frame, i);
+    EXPECT_EQ(rows[i].track_id, 7);
+    EXPECT_EQ(rows[i].instance_id, 3);
+    EXPECT_NEAR(rows[i].twist_in_world[2], expected_vz[i], 1e-9) << "row " << i;
+    EXPECT_NEAR(rows[i].twist_in_world.tail<3>().norm(), 0.0, 1e-12);
+  }
+  ASSERT_TRUE(out.Write(dir / "run", RunInfo()).ok());
+  auto back = ReadObjectTracks(dir / "run/objects_refined.txt");
+  ASSERT_TRUE(back.ok()) << back.status();
+  EXPECT_EQ(back->size(), 6u);
+}
+
 // ---------------------------------------------------------------- PLY
 TEST(Ply, AsciiRoundTrip) {
   ScratchDir dir;
