@@ -41,6 +41,8 @@ echo "== streaming through the server"
 
 echo "== metrics"
 "$bin/client/twistslam" eval --dataset "$OUT/data" --format kitti-tracking --seq 0000 --est "$OUT/run" --json "$OUT/run/metrics.json"
+echo "== metrics of the objects' trajectories as the dynamic BA left them (objects_refined.txt)"
+"$bin/client/twistslam" eval --dataset "$OUT/data" --format kitti-tracking --seq 0000 --est "$OUT/run" --refined --json "$OUT/run/metrics_refined.json" | sed -n '/^objects from/,$p'
 
 echo "== pictures"
 "$bin/client/twistslam" plot --est "$OUT/run" --dataset "$OUT/data" --format kitti-tracking --seq 0000
