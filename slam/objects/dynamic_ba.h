@@ -90,9 +90,11 @@ struct DynamicBaOptions {
   int max_iterations = 10;
   double huber_delta = 2.447;  // on residuals in σ units (√χ²₂(0.95))
   // W^{1/2}: per-component weights of the constant-velocity term, (v, ω) in
-  // 1/m and 1/rad per frame step.
+  // 1/m and 1/rad per frame step: a change of velocity of 2.5 cm and of
+  // 0.29° per frame step costs one σ. Half these weights let the objects'
+  // BA fit the observation noise (docs/objects.md section 22).
   geometry::Vector6d const_velocity_sqrt_weight =
-      (geometry::Vector6d() << 20, 20, 20, 100, 100, 100).finished();
+      (geometry::Vector6d() << 40, 40, 40, 200, 200, 200).finished();
   double const_velocity_huber = 1.0;
   bool use_const_velocity = true;
   // σ of each object's observations from the MAD of its initial residuals

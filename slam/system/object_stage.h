@@ -60,7 +60,7 @@ struct ObjectStageOptions {
   // SlamOptions::object_ba_window_frames (10 by default; the solve is
   // bit-deterministic, see dynamic_ba.cc); 0 here for a stage built alone.
   int ba_window_frames = 0;
-  int ba_iterations = 5;
+  int ba_iterations = 3;
 };
 
 struct ObjectStageInput {

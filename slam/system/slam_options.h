@@ -35,7 +35,9 @@ struct SlamOptions {
   // camera poses fixed) over the last N frames, also bounded by
   // temporal_window_s. 0: off; else in [3, 100].
   int object_ba_window_frames = 10;
-  int object_ba_iterations = 5;  // Levenberg-Marquardt iterations per frame
+  // Levenberg-Marquardt iterations per frame. More is worse: the solve then
+  // fits the window's observation noise (docs/objects.md section 22).
+  int object_ba_iterations = 3;
   // Keypoints of dynamic-class instances the object stage has seen standing
   // still (parked cars) are used by the static camera pipeline (tracking and
   // mapping) until the instance moves again (issue #5: parked cars' points
