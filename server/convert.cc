@@ -601,6 +601,18 @@ pb::ClusterEventType ClusterEventTypeToProto(ClusterEventType type) {
   return pb::CLUSTER_EVENT_TYPE_UNSPECIFIED;
 }
 
+// Appends the poses [begin, end) of a trajectory.
+void AddTimedPoses(const MapSnapshot::TimedPoses& trajectory,
+                   size_t begin,
+                   size_t end,
+                   google::protobuf::RepeatedPtrField<pb::TimedPose>* out) {
+  for (size_t k = begin; k < end; ++k) {
+    pb::TimedPose* tp = out->Add();
+    tp->set_timestamp_ns(trajectory[k].first);
+    ToProto(trajectory[k].second, tp->mutable_world_from_object());
+  }
+}
+
 }  // namespace
 
 void ToProto(const FrameResult& result, pb::FrameUpdate* out) {
@@ -693,11 +705,7 @@ std::vector<pb::MapChunk> MapToChunks(const MapSnapshot& map, const MapChunkOpti
       pc.set_is_dynamic(c.is_dynamic);
       if (c.plane) ToProto(*c.plane, pc.mutable_plane());
       if (!options.skip_trajectories) {
-        for (const auto& [t_ns, pose] : c.trajectory) {
-          pb::TimedPose* tp = pc.add_trajectory();
-          tp->set_timestamp_ns(t_ns);
-          ToProto(pose, tp->mutable_world_from_object());
-        }
+        AddTimedPoses(c.trajectory, 0, c.trajectory.size(), pc.mutable_trajectory());
       }
       // A cluster with a very long trajectory may alone exceed the budget; it
       // then gets a chunk of its own (still far below the message limit).
@@ -718,11 +726,7 @@ std::vector<pb::MapChunk> MapToChunks(const MapSnapshot& map, const MapChunkOpti
         po.set_instance_id(o.instance_id);
         po.set_cluster_id(o.cluster_id);
         const size_t end = std::min(o.trajectory.size(), begin + poses_per_piece);
-        for (size_t k = begin; k < end; ++k) {
-          pb::TimedPose* tp = po.add_trajectory();
-          tp->set_timestamp_ns(o.trajectory[k].first);
-          ToProto(o.trajectory[k].second, tp->mutable_world_from_object());
-        }
+        AddTimedPoses(o.trajectory, begin, end, po.mutable_trajectory());
         begin = end;
         const int64_t bytes = static_cast<int64_t>(po.ByteSizeLong()) + 5;
         *room_for(bytes)->add_objects() = std::move(po);

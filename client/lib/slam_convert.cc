@@ -16,6 +16,13 @@ std::string JointName(pb::JointType type) {
   return joints::JointTypeName(static_cast<joints::JointType>(v - 1));
 }
 
+void AppendTimedPoses(const google::protobuf::RepeatedPtrField<pb::TimedPose>& poses,
+                      MapSnapshot::TimedPoses* out) {
+  for (const pb::TimedPose& t : poses) {
+    out->emplace_back(t.timestamp_ns(), PoseFromProto(t.world_from_object()));
+  }
+}
+
 }  // namespace
 
 geometry::SE3d PoseFromProto(const pb::Pose& pose) {
@@ -159,9 +166,7 @@ MapSnapshot MapFromChunks(const std::vector<pb::MapChunk>& chunks) {
       cluster.is_dynamic = c.is_dynamic();
       if (c.has_plane())
         cluster.plane = Eigen::Vector4d(c.plane().a(), c.plane().b(), c.plane().c(), c.plane().d());
-      for (const pb::TimedPose& t : c.trajectory()) {
-        cluster.trajectory.emplace_back(t.timestamp_ns(), PoseFromProto(t.world_from_object()));
-      }
+      AppendTimedPoses(c.trajectory(), &cluster.trajectory);
       map.clusters.push_back(std::move(cluster));
     }
     for (const pb::ObjectTrajectory& o : chunk.objects()) {
@@ -174,10 +179,7 @@ MapSnapshot MapFromChunks(const std::vector<pb::MapChunk>& chunks) {
         object.cluster_id = o.cluster_id();
         map.objects.push_back(std::move(object));
       }
-      for (const pb::TimedPose& t : o.trajectory()) {
-        map.objects.back().trajectory.emplace_back(t.timestamp_ns(),
-                                                   PoseFromProto(t.world_from_object()));
-      }
+      AppendTimedPoses(o.trajectory(), &map.objects.back().trajectory);
     }
   }
   return map;

@@ -59,24 +59,30 @@ std::vector<ObjectTrackRow> RunOutputWriter::RefinedObjectRows() const {
   for (const FrameRecord& f : frames_) frame_of_time.emplace(f.timestamp_ns, f.index);
   for (const TimedObjectTrajectory& t : *refined_) {
     // The poses at the run's frames, in time order.
-    std::vector<std::pair<int64_t, const geometry::SE3d*>> poses;
+    struct AtFrame {
+      int64_t frame;
+      int64_t t_ns;
+      const geometry::SE3d* pose;
+    };
+    std::vector<AtFrame> poses;
     for (const auto& [t_ns, pose] : t.poses) {
-      if (frame_of_time.count(t_ns) > 0) poses.emplace_back(t_ns, &pose);
+      const auto frame = frame_of_time.find(t_ns);
+      if (frame != frame_of_time.end()) poses.push_back({frame->second, t_ns, &pose});
     }
     for (size_t i = 0; i < poses.size(); ++i) {
       ObjectTrackRow row;
-      row.frame = frame_of_time.at(poses[i].first);
+      row.frame = poses[i].frame;
       row.track_id = t.track_id;
       row.class_id = t.class_id;
-      row.world_from_object = *poses[i].second;
+      row.world_from_object = *poses[i].pose;
       row.instance_id = t.instance_id;
       // Central difference over two rows either side (cut at the ends).
       constexpr size_t kHalfWindow = 2;
       const size_t a = i > kHalfWindow ? i - kHalfWindow : 0;
       const size_t b = std::min(poses.size() - 1, i + kHalfWindow);
-      if (b > a && poses[b].first > poses[a].first) {
-        row.twist_in_world = ((*poses[b].second) * poses[a].second->Inverse()).Log() /
-                             (static_cast<double>(poses[b].first - poses[a].first) * 1e-9);
+      if (b > a && poses[b].t_ns > poses[a].t_ns) {
+        row.twist_in_world = ((*poses[b].pose) * poses[a].pose->Inverse()).Log() /
+                             (static_cast<double>(poses[b].t_ns - poses[a].t_ns) * 1e-9);
       }
       rows.push_back(row);
     }

@@ -29,6 +29,8 @@ namespace twist {
 
 // A read-only copy of the map for clients (map fetch, plots, PLY export).
 struct MapSnapshot {
+  // (timestamp_ns, world_from_object), oldest first.
+  using TimedPoses = std::vector<std::pair<int64_t, geometry::SE3d>>;
   struct Point {
     Eigen::Vector3d p_in_world;
     int class_id = 0;
@@ -45,8 +47,7 @@ struct MapSnapshot {
     int instance_id = 0;
     bool is_dynamic = false;
     std::optional<Eigen::Vector4d> plane;
-    std::vector<std::pair<int64_t, geometry::SE3d>>
-        trajectory;  // (timestamp_ns, world_from_object)
+    TimedPoses trajectory;
   };
   // The whole trajectory of a tracked object (also of one removed since), as
   // the dynamic BA left it: its refined counterpart of the per-frame
@@ -56,8 +57,7 @@ struct MapSnapshot {
     int class_id = 0;
     int instance_id = 0;     // the last one seen
     int64_t cluster_id = 0;  // the last one held (-1: none)
-    std::vector<std::pair<int64_t, geometry::SE3d>>
-        trajectory;  // (timestamp_ns, world_from_object)
+    TimedPoses trajectory;
   };
   std::vector<Point> points;
   std::vector<KeyFrame> keyframes;
