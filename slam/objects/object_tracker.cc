@@ -139,6 +139,9 @@ absl::Status ObjectTrackerOptions::Validate() const {
     return absl::InvalidArgumentError(
         "object tracker max_points_per_object < min_points_to_create");
   }
+  if (evict_unseen_frames < 0) {
+    return absl::InvalidArgumentError("object tracker evict_unseen_frames < 0");
+  }
   if (!(stereo_level0_half_px > 0.0)) {
     return absl::InvalidArgumentError("object tracker needs stereo_level0_half_px > 0");
   }
@@ -293,10 +296,29 @@ void ObjectTracker::RecordPose(const FrameContext& ctx, TrackedObject* o) {
   }
 }
 
+void ObjectTracker::EvictUnseenPoints(const FrameContext& ctx, TrackedObject* o) const {
+  if (options_.evict_unseen_frames <= 0 ||
+      static_cast<int>(o->points.size()) < options_.max_points_per_object)
+    return;
+  // Seen: observed in this frame (pending) or in a recorded frame of the
+  // last evict_unseen_frames.
+  std::unordered_set<int64_t> seen;
+  for (const ObjectPointObservation& obs : o->pending_observations) seen.insert(obs.point_id);
+  const int64_t oldest = ctx.frame.frame_index - options_.evict_unseen_frames;
+  for (auto it = o->history.rbegin(); it != o->history.rend() && it->frame_index > oldest; ++it) {
+    for (const ObjectPointObservation& obs : it->observations) seen.insert(obs.point_id);
+  }
+  o->points.erase(std::remove_if(o->points.begin(),
+                                 o->points.end(),
+                                 [&](const ObjectPoint& p) { return seen.count(p.id) == 0; }),
+                  o->points.end());
+}
+
 void ObjectTracker::AddNewPoints(const FrameContext& ctx,
                                  const ObjectDetectionInput& det,
                                  TrackedObject* o,
                                  const std::vector<Eigen::Vector2d>& occupied) {
+  EvictUnseenPoints(ctx, o);
   const FrameKeypoints& kps = ctx.frame.keypoints;
   const SE3d camera_from_object = ctx.frame.camera_from_world * o->world_from_object;
   const SE3d object_from_camera = camera_from_object.Inverse();

@@ -166,6 +166,12 @@ struct ObjectTrackerOptions {
   int min_points_to_create = 8;
   int min_points_to_track = 5;
   int max_points_per_object = 300;
+  // When an object holds max_points_per_object points, the points it has not
+  // observed in its last evict_unseen_frames frames make room for new ones
+  // (0: never). Without it a long-tracked car stops taking points once full,
+  // and loses track when the camera comes to see other faces of it
+  // (docs/objects.md §23).
+  int evict_unseen_frames = 5;
   double max_depth_m = 60.0;        // triangulated points further away are dropped
   double max_depth_spread_m = 4.0;  // around the object's median depth
   // An object is created only once its stereo structure is usable: the depth
@@ -388,6 +394,9 @@ class ObjectTracker {
                  TrackedObject* object,
                  double* score);
   bool Create(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* object);
+  // Removes the points of a full object (max_points_per_object) that no
+  // observation of its last evict_unseen_frames frames saw.
+  void EvictUnseenPoints(const FrameContext& ctx, TrackedObject* o) const;
   void AddNewPoints(const FrameContext& ctx,
                     const ObjectDetectionInput& det,
                     TrackedObject* object,

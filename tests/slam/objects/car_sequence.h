@@ -56,7 +56,13 @@ class CarSequence {
   void set_measurement_glitch(const SE3d& world_offset) { glitch_ = world_offset; }
   // Only the first n points are seen (keypoints and flow; 0: all), as when
   // the car is mostly occluded.
-  void set_shown_points(size_t n) { shown_ = n; }
+  void set_shown_points(size_t n) { set_shown_range(0, n); }
+  // Only points [begin, end) are seen (end 0: all), as when the camera comes
+  // to see other faces of the car.
+  void set_shown_range(size_t begin, size_t end) {
+    shown_begin_ = begin;
+    shown_ = end;
+  }
 
   // Frame i (advances the truth by one step after frame 0).
   ObjectFrameInput Next(int64_t cluster_id, bool detected) {
@@ -77,7 +83,7 @@ class CarSequence {
       const Eigen::Vector3d uvr =
           cam_.ProjectStereo(Eigen::Vector3d(camera_from_object * points_[k]));
       true_uv[k] = uvr.head<2>();
-      if (!detected || (shown_ > 0 && k >= shown_)) continue;
+      if (!detected || !Shown(k)) continue;
       Eigen::Vector2d uv = uvr.head<2>();
       double ur = uvr.z();
       if (noise_ > 0) {
@@ -97,7 +103,7 @@ class CarSequence {
     if (!prev_uv_.empty()) {
       cv::Mat owner(cam_.height, cam_.width, CV_32SC1, cv::Scalar(-1));
       for (size_t k = 0; k < points_.size(); ++k) {
-        const bool hidden = shown_ > 0 && k >= shown_;  // no flow (NaN) there
+        const bool hidden = !Shown(k);  // no flow (NaN) there
         const Eigen::Vector2d d = hidden ? Eigen::Vector2d(NAN, NAN)
                                          : Eigen::Vector2d(true_uv[k] - prev_uv_[k] + flow_bias_);
         const int px = static_cast<int>(std::floor(prev_uv_[k].x()));
@@ -134,6 +140,8 @@ class CarSequence {
   }
 
  private:
+  bool Shown(size_t k) const { return k >= shown_begin_ && (shown_ == 0 || k < shown_); }
+
   double noise_;
   std::mt19937_64 rng_;
   geometry::StereoCamera cam_;
@@ -145,6 +153,7 @@ class CarSequence {
   std::vector<Eigen::Vector2d> prev_uv_;
   Eigen::Vector2d flow_bias_ = Eigen::Vector2d::Zero();
   SE3d glitch_;
+  size_t shown_begin_ = 0;
   size_t shown_ = 0;
   int64_t index_ = 0;
 };

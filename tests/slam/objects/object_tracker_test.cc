@@ -163,6 +163,59 @@ TEST(ObjectTracker, ParkedCarIsHeldStationaryAndAMovingOneNeverIs) {
 // 1.7 m/s, a plausible start. Resting on fewer than half the inliers of the
 // last step (stationary_min_leave_support), the step coasts and the car stays
 // held; without the rule the car starts.
+// The camera comes to see other faces of a car tracked for long: the points
+// shown slide along the car's point set, 6 new ones per frame. A full object
+// (max_points_per_object) makes room by dropping the points it no longer
+// sees; without that it stops taking points and loses the car once the
+// points it holds are out of view.
+TEST(ObjectTracker, AFullObjectReplacesThePointsItNoLongerSees) {
+  for (int evict : {5, 0}) {
+    CarSequence seq(0.3, 31, 3.0, 200);
+    ObjectTrackerOptions options;
+    options.max_points_per_object = 40;
+    options.evict_unseen_frames = evict;
+    ObjectTracker tracker(seq.camera(), options);
+    const SE3d gt0 = seq.world_from_object();
+    SE3d est0;
+    int tracked = 0;
+    size_t max_points = 0;
+    double max_error = 0.0;
+    const int frames = 20;
+    for (int i = 0; i < frames; ++i) {
+      seq.set_shown_range(6 * i, 6 * i + 40);
+      const auto results = tracker.Process(seq.Next(3, true));
+      ASSERT_TRUE(results.ok()) << results.status();
+      for (const ObjectResult& r : *results) {
+        if (r.id != 1) continue;  // a car lost and created again is not counted
+        if (i == 0) est0 = r.world_from_object;
+        if (r.state != ObjectState::kLost) {
+          ++tracked;
+          max_error = std::max(max_error,
+                               TranslationError(r.world_from_object * est0.Inverse(),
+                                                seq.world_from_object() * gt0.Inverse()));
+        }
+      }
+      for (const auto& [id, o] : tracker.objects())
+        max_points = std::max(max_points, o.points.size());
+    }
+    std::printf(
+        "[changing faces, evict after %d frames] object 1 tracked in %d of %d frames, "
+        "max error %.3f m, max %zu points\n",
+        evict,
+        tracked,
+        frames,
+        max_error,
+        max_points);
+    EXPECT_LE(max_points, 40u);
+    if (evict > 0) {
+      EXPECT_EQ(tracked, frames);
+      EXPECT_LT(max_error, 0.15);
+    } else {
+      EXPECT_LT(tracked, frames);  // the failure the eviction removes
+    }
+  }
+}
+
 TEST(ObjectTracker, AnOccludedParkedCarDoesNotStart) {
   for (double support : {0.5, 0.0}) {
     CarSequence parked(0.3, 24);
