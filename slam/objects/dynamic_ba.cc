@@ -312,6 +312,7 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
     // Constant velocity over consecutive triplets of optimised frames.
     if (options.use_const_velocity && options.const_velocity_sqrt_weight.squaredNorm() > 0.0) {
       for (size_t f = 1; f + 1 < obj.frames.size(); ++f) {
+        if (!obj.frames[f].follows_previous || !obj.frames[f + 1].follows_previous) continue;
         double* blocks[6];
         for (int d = -1; d <= 1; ++d) {
           const size_t g = f + static_cast<size_t>(d + 1) - 1;

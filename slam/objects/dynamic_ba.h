@@ -61,6 +61,10 @@ struct BaObjectFrame {
   // Held fixed (e.g. the object's first frame in the window — the gauge of
   // its points — or a keyframe outside the temporal set).
   bool fixed = false;
+  // Whether this frame comes one step after the previous one of the object
+  // (false after a gap, when the object was lost): the constant-velocity
+  // term only spans triplets of consecutive steps.
+  bool follows_previous = true;
 };
 
 struct BaObject {

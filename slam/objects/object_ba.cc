@@ -54,7 +54,12 @@ std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
       // parked car.
       const bool held_next = k + 1 < samples.size() && samples[k + 1]->held &&
                              samples[k + 1]->frame_index == s->frame_index + 1;
-      f.fixed = k == 0 || s->held || held_next;
+      // After a gap (the object was lost) the poses start again from the
+      // re-acquired or continued one, which is kept: no constant-velocity
+      // term spans the gap, and a continued object (new points only) would
+      // otherwise have no gauge there.
+      f.follows_previous = k == 0 || s->frame_index == samples[k - 1]->frame_index + 1;
+      f.fixed = k == 0 || s->held || held_next || !f.follows_previous;
       ba.frames.push_back(f);
       link.frame_indices.push_back(s->frame_index);
       for (const ObjectPointObservation& o : s->observations) {

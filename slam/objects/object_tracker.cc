@@ -820,7 +820,9 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
                                                           obs,
                                                           initial,
                                                           options_.estimator);
-  if (!est.ok() || !est->success) return false;
+  // A residual scale no tracked step may have (max_step_sigma_px): the
+  // matches do not agree on a motion.
+  if (!est.ok() || !est->success || est->sigma_px > options_.max_step_sigma_px) return false;
   const double n = std::max(1.0, steps);
   if (options_.gate_reacquisition && options_.acceleration_sigma_mps2 > 0.0 &&
       o->twist_covariance_valid && !o->stationary && o->step_seconds > 0.0) {

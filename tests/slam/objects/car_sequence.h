@@ -56,6 +56,9 @@ class CarSequence {
   void set_measurement_glitch(const SE3d& world_offset) { glitch_ = world_offset; }
   // Only the first n points are seen (keypoints and flow; 0: all), as when
   // the car is mostly occluded.
+  // Gaussian noise of this σ added to the keypoints (uv and u_right) on top
+  // of noise_px, as when most matches are wrong.
+  void set_extra_noise_px(double sigma_px) { extra_noise_ = sigma_px; }
   void set_shown_points(size_t n) { set_shown_range(0, n); }
   // Only points [begin, end) are seen (end 0: all), as when the camera comes
   // to see other faces of the car.
@@ -89,6 +92,11 @@ class CarSequence {
       if (noise_ > 0) {
         uv += Eigen::Vector2d(g(rng_), g(rng_));
         ur += g(rng_);
+      }
+      if (extra_noise_ > 0) {
+        std::normal_distribution<double> e(0.0, extra_noise_);
+        uv += Eigen::Vector2d(e(rng_), e(rng_));
+        ur += e(rng_);
       }
       f.keypoints.uv.push_back(uv);
       f.keypoints.u_right.push_back(ur);
@@ -143,6 +151,7 @@ class CarSequence {
   bool Shown(size_t k) const { return k >= shown_begin_ && (shown_ == 0 || k < shown_); }
 
   double noise_;
+  double extra_noise_ = 0.0;
   std::mt19937_64 rng_;
   geometry::StereoCamera cam_;
   Eigen::Vector4d road_;

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cstdio>
+#include <map>
 
 #include "tests/slam/objects/car_sequence.h"
 
@@ -184,6 +185,56 @@ TEST(ObjectBa, HeldFramesStayAndLostObjectsAreLeftOut) {
   ASSERT_EQ(tracker2.objects().begin()->second.state, ObjectState::kLost);
   EXPECT_TRUE(
       AddTrackedObjectsToBa(tracker2, keyframe_of_frame2, ObjectBaOptions{}, &problem2).empty());
+}
+
+// A car tracked for 6 frames, lost for 2, re-acquired and tracked for 6
+// more: no constant-velocity term spans the gap (it would take the 3 steps
+// across it for one), and the re-acquired pose is kept.
+TEST(ObjectBa, NoConstantVelocityTermSpansAGap) {
+  CarSequence seq(0.3, 23);
+  ObjectTracker tracker(seq.camera(), ObjectTrackerOptions{});
+  DynamicBaProblem problem;
+  problem.camera = seq.camera();
+  std::map<int64_t, int> keyframe_of_frame;
+  std::map<int64_t, SE3d> gt;
+  for (int i = 0; i < 14; ++i) {
+    const ObjectFrameInput f = seq.Next(5, i < 6 || i >= 8);
+    gt[f.frame_index] = seq.world_from_object();
+    ASSERT_TRUE(tracker.Process(f).ok());
+    BaKeyframe kf;
+    kf.id = i;
+    kf.timestamp_ns = f.timestamp_ns;
+    kf.camera_from_world = f.camera_from_world;
+    kf.fixed = true;
+    keyframe_of_frame[f.frame_index] = static_cast<int>(problem.keyframes.size());
+    problem.keyframes.push_back(kf);
+  }
+  ASSERT_EQ(tracker.objects().size(), 1u);
+  const int64_t id = tracker.objects().begin()->first;
+  ASSERT_EQ(tracker.objects().at(id).history.size(), 12u);  // re-acquired at frame 8
+  const auto links = AddTrackedObjectsToBa(tracker, keyframe_of_frame, ObjectBaOptions{}, &problem);
+  ASSERT_EQ(links.size(), 1u);
+  const std::vector<BaObjectFrame>& frames = problem.objects[0].frames;
+  ASSERT_EQ(frames.size(), 12u);
+  for (size_t k = 0; k < frames.size(); ++k) {
+    EXPECT_EQ(frames[k].follows_previous, k != 6) << "frame " << k;
+    EXPECT_EQ(frames[k].fixed, k == 0 || k == 6) << "frame " << k;
+  }
+  const auto summary = SolveDynamicBa(&problem, DynamicBaOptions{});
+  ASSERT_TRUE(summary.ok() && summary->usable);
+  EXPECT_EQ(summary->num_const_velocity_terms, 8);  // 4 + 4 (10 across the gap)
+  ApplyBaToTrackedObjects(problem, links, ObjectBaOptions{}, &tracker);
+  const TrackedObject& o = tracker.objects().at(id);
+  const SE3d est0 = o.history.front().world_from_object;
+  const SE3d gt0 = gt.at(o.history.front().frame_index);
+  double max_error = 0.0;
+  for (const ObjectPoseSample& sample : o.history) {
+    max_error = std::max(max_error,
+                         TranslationError(sample.world_from_object * est0.Inverse(),
+                                          gt.at(sample.frame_index) * gt0.Inverse()));
+  }
+  std::printf("[BA over a 2-frame gap] max trajectory error %.3f m\n", max_error);
+  EXPECT_LT(max_error, 0.15);
 }
 
 }  // namespace

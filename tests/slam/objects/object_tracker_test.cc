@@ -789,6 +789,35 @@ TEST(ObjectTracker, AReacquisitionFarFromThePredictionIsRefused) {
   }
 }
 
+// A car hidden for two frames comes back with its keypoints scattered by
+// 8 px (matches that do not agree on any motion): a re-acquisition whose
+// residual scale exceeds max_step_sigma_px is refused like a tracked step
+// would be, and the object stays lost. (The filter's gate is off here, so
+// only the scale decides.)
+TEST(ObjectTracker, AReacquisitionOnScatteredMatchesIsRefused) {
+  for (double max_sigma : {4.0, 100.0}) {
+    ObjectTrackerOptions options;
+    options.gate_reacquisition = false;
+    options.max_step_sigma_px = max_sigma;
+    HiddenCar car(9, options);
+    ASSERT_GE(car.id, 0);
+    car.seq.set_extra_noise_px(8.0);
+    ASSERT_TRUE(car.tracker.Process(car.seq.Next(11, true)).ok());
+    const TrackedObject& o = car.object();
+    std::printf(
+        "[re-acquisition on scattered matches, max sigma %.0f px] state %d, sigma %.2f px\n",
+        max_sigma,
+        static_cast<int>(o.state),
+        o.last_sigma_px);
+    if (max_sigma < 10.0) {
+      EXPECT_EQ(o.state, ObjectState::kLost);
+    } else {
+      EXPECT_EQ(o.state, ObjectState::kTracked);
+      EXPECT_GT(o.last_sigma_px, 4.0);
+    }
+  }
+}
+
 // After a re-acquisition the filter goes on from the motion over the gap: a
 // failed measurement in the next frame is refused like any other. Without
 // it the filter restarted there and took the first step as measured.
