@@ -121,6 +121,9 @@ struct ObjectTracker::FrameContext {
   KeypointGrid grid;
   // Stereo u_right of (cluster id, keypoint) as ObjectStereo measured it.
   mutable std::unordered_map<int64_t, std::unordered_map<size_t, double>> stereo_cache;
+  // Objects whose re-acquisition the filter's gate refused in this frame: a
+  // measurement that disagrees with their motion; not continued either.
+  mutable std::unordered_set<int64_t> gate_refused;
   FrameContext(const ObjectFrameInput& f, double dt_s)
       : frame(f),
         world_from_camera(f.camera_from_world.Inverse()),
@@ -141,6 +144,13 @@ absl::Status ObjectTrackerOptions::Validate() const {
   }
   if (evict_unseen_frames < 0) {
     return absl::InvalidArgumentError("object tracker evict_unseen_frames < 0");
+  }
+  if (max_continuation_gap_frames < 0 || continuation_min_history < 2 ||
+      !(continuation_margin_m >= 0.0) ||
+      !(continuation_min_inside > 0.0 && continuation_min_inside <= 1.0)) {
+    return absl::InvalidArgumentError(
+        "object tracker needs max_continuation_gap_frames >= 0, continuation_min_history >= 2, "
+        "continuation_margin_m >= 0 and continuation_min_inside in (0, 1]");
   }
   if (!(stereo_level0_half_px > 0.0)) {
     return absl::InvalidArgumentError("object tracker needs stereo_level0_half_px > 0");
@@ -831,7 +841,10 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
     const Matrix6d predicted_covariance =
         projector * (n * n * o->twist_covariance) * projector.transpose() +
         n * n * n * ProcessNoise(*o, o->step_seconds);
-    if (!FilterStep(*o, initial, predicted_covariance, &*est)) return false;
+    if (!FilterStep(*o, initial, predicted_covariance, &*est)) {
+      ctx.gate_refused.insert(o->id);
+      return false;
+    }
   }
   o->joint = EffectiveJoint(det.joint);
   o->world_from_object = est->world_from_object;
@@ -859,6 +872,76 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
   }
   AddNewPoints(ctx, det, o, occupied);
   return true;
+}
+
+double ObjectTracker::ContinuationFit(const FrameContext& ctx,
+                                      const TrackedObject& lost,
+                                      const TrackedObject& created,
+                                      SE3d* predicted) const {
+  const int64_t gap = ctx.frame.frame_index - lost.last_seen_frame;
+  if (options_.max_continuation_gap_frames <= 0 || gap < 1 ||
+      gap > options_.max_continuation_gap_frames || lost.class_id != created.class_id ||
+      static_cast<int>(lost.history.size()) < options_.continuation_min_history ||
+      lost.points.empty() || created.points.empty() || lost.history.back().observations.empty()) {
+    return -1.0;
+  }
+  // The pose predicted over the gap, as for a re-acquisition.
+  double steps = static_cast<double>(gap);
+  if (lost.step_seconds > 0.0 && ctx.frame.timestamp_ns > lost.history.back().timestamp_ns) {
+    steps = (ctx.frame.timestamp_ns - lost.history.back().timestamp_ns) * 1e-9 / lost.step_seconds;
+  }
+  const Vector6d motion = lost.stationary
+                              ? Vector6d::Zero()
+                              : Vector6d(lost.joint.WorldProjector() * (steps * lost.twist_step));
+  *predicted = SE3d::Exp(motion) * lost.world_from_object;
+  // The box of the lost object's points, from the 5th to the 95th
+  // percentile on each axis (a creation can leak a few background points).
+  Eigen::Vector3d lo, hi;
+  std::vector<double> axis(lost.points.size());
+  const size_t n = axis.size();
+  const size_t low = n / 20, high = n - 1 - n / 20;
+  for (int a = 0; a < 3; ++a) {
+    for (size_t k = 0; k < n; ++k) axis[k] = lost.points[k].point_in_object[a];
+    std::nth_element(axis.begin(), axis.begin() + static_cast<std::ptrdiff_t>(low), axis.end());
+    lo[a] = axis[low] - options_.continuation_margin_m;
+    std::nth_element(axis.begin(), axis.begin() + static_cast<std::ptrdiff_t>(high), axis.end());
+    hi[a] = axis[high] + options_.continuation_margin_m;
+  }
+  const SE3d lost_from_created = predicted->Inverse() * created.world_from_object;
+  int inside = 0;
+  for (const ObjectPoint& p : created.points) {
+    const Eigen::Vector3d q = lost_from_created * p.point_in_object;
+    inside += (q.array() >= lo.array()).all() && (q.array() <= hi.array()).all() ? 1 : 0;
+  }
+  return static_cast<double>(inside) / static_cast<double>(created.points.size());
+}
+
+void ObjectTracker::Continue(const SE3d& predicted,
+                             TrackedObject* created,
+                             TrackedObject* lost) const {
+  const SE3d lost_from_created = predicted.Inverse() * created->world_from_object;
+  std::unordered_map<int64_t, int64_t> new_id;
+  lost->points.clear();
+  for (ObjectPoint& p : created->points) {
+    new_id[p.id] = lost->next_point_id;
+    p.id = lost->next_point_id++;
+    p.point_in_object = lost_from_created * p.point_in_object;
+    lost->points.push_back(std::move(p));
+  }
+  lost->pending_observations.clear();
+  for (ObjectPointObservation obs : created->pending_observations) {
+    obs.point_id = new_id.at(obs.point_id);
+    lost->pending_observations.push_back(obs);
+  }
+  // The motion over the gap is the prediction: the step and its covariance
+  // stand, widened by the random acceleration of one step.
+  lost->world_from_object = predicted;
+  if (lost->twist_covariance_valid && lost->step_seconds > 0.0) {
+    lost->twist_covariance += ProcessNoise(*lost, lost->step_seconds);
+  }
+  lost->joint = created->joint;
+  lost->class_id = created->class_id;
+  lost->last_num_inliers = static_cast<int>(lost->points.size());
 }
 
 absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFrameInput& frame) {
@@ -953,6 +1036,18 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
     return obj.state == ObjectState::kLost ||
            (options_.reidentify_undetected && detected_clusters.count(obj.cluster_id) == 0);
   };
+  // A lost (or undetected) object takes an unmatched detection over.
+  auto take_detection = [&](const ObjectDetectionInput& det, TrackedObject* obj) {
+    release_cluster(det.cluster_id);
+    obj->cluster_id = det.cluster_id;
+    obj->instance_id = det.instance_id;
+    obj->state = ObjectState::kTracked;
+    obj->frames_lost = 0;
+    obj->last_seen_frame = frame.frame_index;
+    obj->last_box = det.box;
+    handled.insert(obj->id);
+    RecordPose(ctx, obj);
+  };
   for (const ObjectDetectionInput* det : unmatched) {
     // Re-identification of a recently lost object of the same class.
     TrackedObject* best = nullptr;
@@ -967,21 +1062,34 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
       }
     }
     if (best != nullptr) {
-      release_cluster(det->cluster_id);
-      best->cluster_id = det->cluster_id;
-      best->instance_id = det->instance_id;
-      best->state = ObjectState::kTracked;
-      best->frames_lost = 0;
-      best->last_seen_frame = frame.frame_index;
-      best->last_box = det->box;
-      handled.insert(best->id);
+      take_detection(*det, best);
       ++stats_.reidentified;
-      RecordPose(ctx, best);
       continue;
     }
     TrackedObject o;
     o.id = next_object_id_;
     if (!Create(ctx, *det, &o)) continue;
+    // A lost object whose predicted body holds the new structure continues
+    // on it.
+    TrackedObject* continued = nullptr;
+    SE3d continued_pose;
+    double best_fit = options_.continuation_min_inside;
+    for (auto& [id, obj] : objects_) {
+      if (handled.count(id) > 0 || !may_take(obj) || ctx.gate_refused.count(id) > 0) continue;
+      SE3d predicted;
+      const double fit = ContinuationFit(ctx, obj, o, &predicted);
+      if (fit >= best_fit) {
+        best_fit = fit;
+        continued = &obj;
+        continued_pose = predicted;
+      }
+    }
+    if (continued != nullptr) {
+      Continue(continued_pose, &o, continued);
+      take_detection(*det, continued);
+      ++stats_.continued;
+      continue;
+    }
     release_cluster(det->cluster_id);
     ++next_object_id_;
     handled.insert(o.id);

@@ -14,9 +14,11 @@
 //     keypoints inside the object's mask become new object points.
 // Detections without an object first try to re-identify a recently lost
 // object of the same class (predicted pose + appearance), otherwise a new
-// object is created by stereo triangulation, with its frame at the points'
-// centroid projected onto the joint plane and its axes aligned with the joint
-// frame. Objects are new -> tracked -> lost -> removed.
+// structure is triangulated from stereo. It continues a recently lost object
+// whose predicted body holds it (the object keeps its id and motion, its
+// points are replaced), or else makes a new object, with its frame at the
+// points' centroid projected onto the joint plane and its axes aligned with
+// the joint frame. Objects are new -> tracked -> lost -> removed.
 //
 // Plain-data in, plain-data out: the engine passes the camera pose of the
 // frame (from static tracking), the gray left image, the frame's stereo
@@ -246,6 +248,23 @@ struct ObjectTrackerOptions {
   bool gate_reacquisition = true;
   bool gate_after_reacquisition = true;
   double reid_radius_scale = 4.0;  // search radius multiplier after a loss
+  // Continuation (docs/objects.md §24): a detection that no object
+  // re-acquires, and on which a new object would be created, continues a lost
+  // object instead when the new structure lies on that object's predicted
+  // body: at least continuation_min_inside of the new points fall inside the
+  // box of its points (in its frame, at the pose predicted over the gap),
+  // grown by continuation_margin_m. The object then keeps its id and motion;
+  // its points are replaced by the new ones, placed with the predicted pose.
+  // Only objects lost for at most max_continuation_gap_frames frames (0:
+  // never), with continuation_min_history recorded poses (a motion to predict
+  // from), and whose last recorded step was measured (not coasted: an object
+  // lost on steps its filter refused has a motion that is not to be trusted)
+  // qualify. Re-acquisition fails where the old points cannot be
+  // matched: another face of the car, or a part of it that an occluder left.
+  int max_continuation_gap_frames = 5;
+  int continuation_min_history = 3;
+  double continuation_margin_m = 0.5;
+  double continuation_min_inside = 0.8;
   bool refine_by_projection = true;
   // With refine_by_projection: the observations of the final estimate are the
   // keypoint (descriptor) and patch matches of all the object's points, found
@@ -324,6 +343,7 @@ struct ObjectTrackerStats {
   int tracked = 0;
   int created = 0;
   int reidentified = 0;
+  int continued = 0;  // lost objects continued on a new structure
   int lost = 0;
   int removed = 0;
   int rejected = 0;  // steps that failed the filter's gate (coasted or lost)
@@ -394,6 +414,15 @@ class ObjectTracker {
                  TrackedObject* object,
                  double* score);
   bool Create(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* object);
+  // The share of `created`'s points (just created) inside the predicted body
+  // of `lost` (ObjectTrackerOptions::continuation_*), and the predicted pose;
+  // -1 when `lost` does not qualify.
+  double ContinuationFit(const FrameContext& ctx,
+                         const TrackedObject& lost,
+                         const TrackedObject& created,
+                         geometry::SE3d* predicted) const;
+  // Moves `created`'s points into `lost` at `predicted` (see above).
+  void Continue(const geometry::SE3d& predicted, TrackedObject* created, TrackedObject* lost) const;
   // Removes the points of a full object (max_points_per_object) that no
   // observation of its last evict_unseen_frames frames saw.
   void EvictUnseenPoints(const FrameContext& ctx, TrackedObject* o) const;

@@ -4,6 +4,7 @@
 
 #include <cstdio>
 #include <random>
+#include <set>
 #include <utility>
 
 #include "slam/objects/joint_frames.h"
@@ -174,6 +175,7 @@ TEST(ObjectTracker, AFullObjectReplacesThePointsItNoLongerSees) {
     ObjectTrackerOptions options;
     options.max_points_per_object = 40;
     options.evict_unseen_frames = evict;
+    options.max_continuation_gap_frames = 0;  // (a continuation would hide the loss)
     ObjectTracker tracker(seq.camera(), options);
     const SE3d gt0 = seq.world_from_object();
     SE3d est0;
@@ -214,6 +216,97 @@ TEST(ObjectTracker, AFullObjectReplacesThePointsItNoLongerSees) {
       EXPECT_LT(tracked, frames);  // the failure the eviction removes
     }
   }
+}
+
+// A car lost for two frames comes back showing points it never showed
+// before (another face, or a part an occluder had hidden): re-acquisition has
+// nothing to match, and a new object would be created on it. The lost car
+// continues on the new structure instead, placed at the pose predicted over
+// the gap, and keeps its id and motion.
+TEST(ObjectTracker, ALostCarBackWithUnseenPointsContinuesItsTrack) {
+  for (int gap : {5, 0}) {
+    CarSequence seq(0.3, 41, 3.0, 120);
+    ObjectTrackerOptions options;
+    options.max_continuation_gap_frames = gap;
+    ObjectTracker tracker(seq.camera(), options);
+    const SE3d gt0 = seq.world_from_object();
+    SE3d est0;
+    std::set<int64_t> ids;
+    int continued = 0;
+    double max_error = 0.0, max_speed_error = 0.0;
+    for (int i = 0; i < 20; ++i) {
+      const bool detected = i < 8 || i >= 10;
+      seq.set_shown_range(i < 8 ? 0 : 60, i < 8 ? 40 : 100);
+      const auto results = tracker.Process(seq.Next(5, detected));
+      ASSERT_TRUE(results.ok()) << results.status();
+      continued += tracker.last_stats().continued;
+      for (const ObjectResult& r : *results) {
+        if (r.state == ObjectState::kLost) continue;
+        ids.insert(r.id);
+        if (i == 0) est0 = r.world_from_object;
+        if (r.id != 1) continue;
+        max_error = std::max(max_error,
+                             TranslationError(r.world_from_object * est0.Inverse(),
+                                              seq.world_from_object() * gt0.Inverse()));
+        if (i >= 10) {
+          const double true_speed =
+              (seq.step().head<3>() +
+               seq.step().tail<3>().cross(seq.world_from_object().translation()))
+                  .norm() /
+              0.1;
+          max_speed_error = std::max(max_speed_error, std::abs(r.speed_mps - true_speed));
+        }
+      }
+    }
+    std::printf(
+        "[lost car back with unseen points, gap %d] %zu ids, %d continued, max error "
+        "%.3f m, max speed error %.2f m/s\n",
+        gap,
+        ids.size(),
+        continued,
+        max_error,
+        max_speed_error);
+    if (gap > 0) {
+      EXPECT_EQ(ids, std::set<int64_t>{1});
+      EXPECT_EQ(continued, 1);
+      EXPECT_LT(max_error, 0.2);
+      EXPECT_LT(max_speed_error, 0.5);  // of 8 m/s
+    } else {
+      EXPECT_EQ(ids.size(), 2u);  // a second object for the same car
+      EXPECT_EQ(continued, 0);
+    }
+  }
+}
+
+// The same car, but its measurements fail (1.5 m aside) in the two frames
+// before it is hidden: the first step is refused by the filter (it coasts),
+// the second loses it. Its last recorded step was not measured, so its
+// motion is not to be trusted: the structure it comes back with makes a new
+// object (it was continued without that rule).
+TEST(ObjectTracker, ACarLostWhileCoastingIsNotContinued) {
+  CarSequence seq(0.3, 41, 3.0, 120);
+  ObjectTracker tracker(seq.camera(), ObjectTrackerOptions{});
+  int rejected = 0, continued = 0;
+  std::set<int64_t> ids;
+  for (int i = 0; i < 14; ++i) {
+    seq.set_shown_range(i < 8 ? 0 : 60, i < 8 ? 40 : 100);
+    seq.set_measurement_glitch(i == 6 || i == 7 ? SE3d(geometry::SO3d(), Eigen::Vector3d(1.5, 0, 0))
+                                                : SE3d());
+    const auto results = tracker.Process(seq.Next(5, i < 8 || i >= 10));
+    ASSERT_TRUE(results.ok()) << results.status();
+    rejected += tracker.last_stats().rejected;
+    continued += tracker.last_stats().continued;
+    for (const ObjectResult& r : *results) {
+      if (r.state != ObjectState::kLost) ids.insert(r.id);
+    }
+  }
+  std::printf("[car lost while coasting] %d rejected, %d continued, %zu ids\n",
+              rejected,
+              continued,
+              ids.size());
+  EXPECT_GE(rejected, 1);
+  EXPECT_EQ(continued, 0);
+  EXPECT_EQ(ids.size(), 2u);
 }
 
 TEST(ObjectTracker, AnOccludedParkedCarDoesNotStart) {
