@@ -100,6 +100,17 @@ bool DeepInsideDetection(const ObjectDetectionInput& det,
   return true;
 }
 
+// Steps elapsed since `o` was last seen, in units of its last step (frames
+// when its step has no duration); at least 1.
+double StepsSinceSeen(const ObjectFrameInput& f, const TrackedObject& o) {
+  double steps = static_cast<double>(std::max<int64_t>(1, f.frame_index - o.last_seen_frame));
+  if (o.step_seconds > 0.0 && !o.history.empty() &&
+      f.timestamp_ns > o.history.back().timestamp_ns) {
+    steps = (f.timestamp_ns - o.history.back().timestamp_ns) * 1e-9 / o.step_seconds;
+  }
+  return steps;
+}
+
 // Velocity of the point p (world frame) under the world twist ξ = (v, ω)
 // (per unit of the twist's time): v + ω × p.
 Eigen::Vector3d PointVelocity(const Vector6d& twist, const Eigen::Vector3d& p) {
@@ -760,12 +771,7 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
                               TrackedObject* o,
                               double* score) {
   const ObjectFrameInput& f = ctx.frame;
-  // Steps elapsed since the object was last seen, in units of its last step.
-  double steps = static_cast<double>(std::max<int64_t>(1, f.frame_index - o->last_seen_frame));
-  if (o->step_seconds > 0.0 && !o->history.empty() &&
-      f.timestamp_ns > o->history.back().timestamp_ns) {
-    steps = (f.timestamp_ns - o->history.back().timestamp_ns) * 1e-9 / o->step_seconds;
-  }
+  const double steps = StepsSinceSeen(f, *o);
   const Matrix6d projector = EffectiveJoint(det.joint).WorldProjector();
   const Vector6d initial = projector * (steps * o->twist_step);
   const SE3d predicted = SE3d::Exp(initial) * o->world_from_object;
@@ -886,13 +892,10 @@ double ObjectTracker::ContinuationFit(const FrameContext& ctx,
     return -1.0;
   }
   // The pose predicted over the gap, as for a re-acquisition.
-  double steps = static_cast<double>(gap);
-  if (lost.step_seconds > 0.0 && ctx.frame.timestamp_ns > lost.history.back().timestamp_ns) {
-    steps = (ctx.frame.timestamp_ns - lost.history.back().timestamp_ns) * 1e-9 / lost.step_seconds;
-  }
   const Vector6d motion = lost.stationary
                               ? Vector6d::Zero()
-                              : Vector6d(lost.joint.WorldProjector() * (steps * lost.twist_step));
+                              : Vector6d(lost.joint.WorldProjector() *
+                                         (StepsSinceSeen(ctx.frame, lost) * lost.twist_step));
   *predicted = SE3d::Exp(motion) * lost.world_from_object;
   // The box of the lost object's points, from the 5th to the 95th
   // percentile on each axis (a creation can leak a few background points).

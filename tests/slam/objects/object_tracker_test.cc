@@ -16,6 +16,15 @@ namespace {
 
 using namespace twist::objects::testing;  // NOLINT
 
+// Speed error of a tracked car at frame i (true speed of its origin).
+double SpeedError(const CarSequence& seq, const ObjectResult& r) {
+  const double true_speed =
+      (seq.step().head<3>() + seq.step().tail<3>().cross(seq.world_from_object().translation()))
+          .norm() /
+      0.1;
+  return std::abs(r.speed_mps - true_speed);
+}
+
 TEST(JointFrames, PlanarFromParentRoadAndRevoluteFromAxis) {
   JointSpec spec;
   spec.type = joints::JointType::kPlanar;
@@ -101,11 +110,7 @@ TEST(ObjectTracker, NoisyTrackingAndUnconstrainedSwitch) {
       const SE3d gt_motion = seq.world_from_object() * gt0.Inverse();
       max_t = std::max(max_t, TranslationError(est_motion, gt_motion));
       max_r = std::max(max_r, RotationErrorDeg(est_motion, gt_motion));
-      const double true_speed =
-          (seq.step().head<3>() + seq.step().tail<3>().cross(seq.world_from_object().translation()))
-              .norm() /
-          0.1;
-      speed_err = std::max(speed_err, std::abs(r.speed_mps - true_speed));
+      speed_err = std::max(speed_err, SpeedError(seq, r));
     }
     std::printf(
         "[tracker %s] max drift over 20 frames: %.3f m, %.3f deg; max speed error %.3f m/s\n",
@@ -248,14 +253,7 @@ TEST(ObjectTracker, ALostCarBackWithUnseenPointsContinuesItsTrack) {
         max_error = std::max(max_error,
                              TranslationError(r.world_from_object * est0.Inverse(),
                                               seq.world_from_object() * gt0.Inverse()));
-        if (i >= 10) {
-          const double true_speed =
-              (seq.step().head<3>() +
-               seq.step().tail<3>().cross(seq.world_from_object().translation()))
-                  .norm() /
-              0.1;
-          max_speed_error = std::max(max_speed_error, std::abs(r.speed_mps - true_speed));
-        }
+        if (i >= 10) max_speed_error = std::max(max_speed_error, SpeedError(seq, r));
       }
     }
     std::printf(
@@ -418,15 +416,6 @@ TEST(ObjectTracker, AFailedMeasurementDoesNotStartAParkedCar) {
       EXPECT_GT(glitch_error, 0.5);
     }
   }
-}
-
-// Speed error of a tracked car at frame i (true speed of its origin).
-double SpeedError(const CarSequence& seq, const ObjectResult& r) {
-  const double true_speed =
-      (seq.step().head<3>() + seq.step().tail<3>().cross(seq.world_from_object().translation()))
-          .norm() /
-      0.1;
-  return std::abs(r.speed_mps - true_speed);
 }
 
 // A car held stationary that starts at 2 or 4 m/s² leaves standstill within a
