@@ -232,6 +232,18 @@ joints::Joint ObjectTracker::EffectiveJoint(const joints::Joint& joint) const {
   return joints::Joint(joints::JointType::kFree, joint.world_from_joint());
 }
 
+void ObjectTracker::UpdateJoint(const joints::Joint& joint, TrackedObject* o) const {
+  const joints::Joint next = EffectiveJoint(joint);
+  if (options_.follow_parent_plane && !o->stationary && next.type() == joints::JointType::kPlanar &&
+      o->joint.type() == joints::JointType::kPlanar) {
+    const Eigen::Vector3d n = next.world_from_joint().rotation().col(2);
+    const Eigen::Vector3d on_plane = next.world_from_joint().translation();
+    const Eigen::Vector3d t = o->world_from_object.translation();
+    o->world_from_object.translation() = t - (t - on_plane).dot(n) * n;
+  }
+  o->joint = next;
+}
+
 ObjectTracker::State ObjectTracker::GetState() const {
   State s;
   s.objects = objects_;
@@ -709,6 +721,9 @@ bool ObjectTracker::Track(const FrameContext& ctx,
     for (ObjectPoint& p : o->points) p.seen_last_frame = false;
     return true;
   };
+  // A step resting on a handful of inliers is not a measurement (a far car
+  // whose matches went to its surroundings): the prediction stands.
+  if (est->num_inliers < options_.min_step_inliers) return coast();
   if (filtered) {
     if (o->twist_covariance_valid) predicted_covariance = PredictedCovariance(ctx, *o);
     if (!FilterStep(*o, initial, predicted_covariance, &*est)) return coast();
@@ -1005,7 +1020,7 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
     bool ok;
     const bool reacquiring = !(o->frames_lost == 0 && has_prev_);
     if (!reacquiring) {
-      o->joint = EffectiveJoint(det.joint);
+      UpdateJoint(det.joint, o);
       ok = Track(ctx, det, o);
     } else {
       double score = 0.0;

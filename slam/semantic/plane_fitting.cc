@@ -2,6 +2,7 @@
 
 #include <glog/logging.h>
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <Eigen/SVD>
 #include <algorithm>
@@ -173,19 +174,116 @@ absl::StatusOr<PlaneFit> FitPlaneRansac(const std::vector<Eigen::Vector3d>& poin
   return fit;
 }
 
-bool ClusterPlane::Update(const std::vector<Eigen::Vector3d>& points, std::mt19937_64* rng) {
-  const int n = static_cast<int>(points.size());
-  if (n < options_.min_points) return false;
-  if (has_plane_ && n < options_.refit_growth * num_points_at_fit_) return false;
+absl::Status PlaneRefineOptions::Validate() const {
+  if (iterations < 1) return absl::InvalidArgumentError("plane refinement iterations < 1");
+  if (!(min_sigma_m > 0.0) || !(unknown_sigma_m > 0.0)) {
+    return absl::InvalidArgumentError("plane refinement sigmas must be > 0");
+  }
+  if (!(tukey_c > 0.0)) return absl::InvalidArgumentError("plane refinement tukey_c must be > 0");
+  return absl::OkStatus();
+}
+
+double PlaneDistanceSigma(const StereoPlanePoint& p,
+                          const Eigen::Vector3d& unit_normal,
+                          const PlaneRefineOptions& options) {
+  if (!(p.sigma_along_m > 0.0)) return options.unknown_sigma_m;
+  return std::max(options.min_sigma_m, p.sigma_along_m * std::abs(unit_normal.dot(p.ray)));
+}
+
+absl::StatusOr<Eigen::Vector4d> RefinePlaneWeighted(const std::vector<StereoPlanePoint>& points,
+                                                    const Eigen::Vector4d& initial,
+                                                    const PlaneRefineOptions& options) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  if (!(initial.head<3>().norm() > 0.0)) {
+    return absl::InvalidArgumentError("plane refinement needs an initial plane");
+  }
+  Eigen::Vector4d plane = NormalizePlane(initial);
+  std::vector<double> w(points.size());
+  for (int it = 0; it < options.iterations; ++it) {
+    const Eigen::Vector3d n = PlaneNormal(plane);
+    const double d = plane(3) / plane.head<3>().norm();
+    double sum_w = 0.0;
+    int used = 0;
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    for (size_t k = 0; k < points.size(); ++k) {
+      const double sigma = PlaneDistanceSigma(points[k], n, options);
+      const double u = (n.dot(points[k].point) + d) / (sigma * options.tukey_c);
+      w[k] = std::abs(u) < 1.0 ? (1.0 - u * u) * (1.0 - u * u) / (sigma * sigma) : 0.0;
+      if (w[k] > 0.0) ++used;
+      sum_w += w[k];
+      centroid += w[k] * points[k].point;
+    }
+    if (used < 3) break;
+    centroid /= sum_w;
+    Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+    for (size_t k = 0; k < points.size(); ++k) {
+      if (w[k] == 0.0) continue;
+      const Eigen::Vector3d r = points[k].point - centroid;
+      scatter += w[k] * r * r.transpose();
+    }
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(scatter);
+    const Eigen::Vector3d ev = eig.eigenvalues();
+    if (!(ev(1) > 1e-12 * std::max(1.0, ev(2)))) break;  // collinear support
+    Eigen::Vector3d m = eig.eigenvectors().col(0);
+    if (m.dot(n) < 0.0) m = -m;
+    plane = NormalizePlane(Eigen::Vector4d(m.x(), m.y(), m.z(), -m.dot(centroid)));
+  }
+  return plane;
+}
+
+std::optional<PlaneFit> ClusterPlane::Fit(const std::vector<Eigen::Vector3d>& positions,
+                                          std::mt19937_64* rng) {
+  const int n = static_cast<int>(positions.size());
+  if (n < options_.min_points) return std::nullopt;
+  if (has_plane_ && options_.refit_growth > 1.0 && n < options_.refit_growth * num_points_at_fit_) {
+    return std::nullopt;
+  }
   absl::StatusOr<PlaneFit> fit =
-      FitPlaneRansac(points, options_.ransac, rng, has_plane_ ? &plane_ : nullptr);
+      FitPlaneRansac(positions, options_.ransac, rng, has_plane_ ? &plane_ : nullptr);
   num_points_at_fit_ = n;  // do not retry on every point when the fit fails
-  if (!fit.ok()) return false;
-  const bool changed = !has_plane_ || !fit->plane.isApprox(plane_, 1e-12);
-  plane_ = fit->plane;
-  num_inliers_ = static_cast<int>(fit->inliers.size());
+  if (!fit.ok()) return std::nullopt;
+  return *std::move(fit);
+}
+
+bool ClusterPlane::Accept(const Eigen::Vector4d& plane, int num_inliers) {
+  const bool changed = !has_plane_ || !plane.isApprox(plane_, 1e-12);
+  plane_ = plane;
+  num_inliers_ = num_inliers;
   has_plane_ = true;
+  if (changed) reported_ = plane;
   return changed;
+}
+
+bool ClusterPlane::Update(const std::vector<Eigen::Vector3d>& points, std::mt19937_64* rng) {
+  const std::optional<PlaneFit> fit = Fit(points, rng);
+  if (!fit) return false;
+  return Accept(fit->plane, static_cast<int>(fit->inliers.size()));
+}
+
+bool ClusterPlane::Update(const std::vector<StereoPlanePoint>& points, std::mt19937_64* rng) {
+  std::vector<Eigen::Vector3d> positions;
+  positions.reserve(points.size());
+  for (const StereoPlanePoint& p : points) positions.push_back(p.point);
+  const std::optional<PlaneFit> fit = Fit(positions, rng);
+  if (!fit) {
+    if (!has_plane_ || !options_.refine_every_update ||
+        static_cast<int>(points.size()) < options_.min_points) {
+      return false;
+    }
+    absl::StatusOr<Eigen::Vector4d> refined = RefinePlaneWeighted(points, plane_, options_.refine);
+    if (!refined.ok()) return false;
+    plane_ = *refined;
+    const Eigen::Vector3d n = PlaneNormal(plane_), m = PlaneNormal(reported_);
+    const double turned = std::acos(std::clamp(n.dot(m), -1.0, 1.0)) * 180.0 / M_PI;
+    const double moved =
+        std::abs(plane_(3) / plane_.head<3>().norm() - reported_(3) / reported_.head<3>().norm());
+    if (turned <= options_.report_angle_deg && moved <= options_.report_offset_m) return false;
+    reported_ = plane_;
+    return true;
+  }
+  absl::StatusOr<Eigen::Vector4d> refined =
+      RefinePlaneWeighted(points, fit->plane, options_.refine);
+  return Accept(refined.ok() ? *refined : fit->plane, static_cast<int>(fit->inliers.size()));
 }
 
 }  // namespace twist::semantic

@@ -97,7 +97,7 @@ joints::Joint ObjectStage::JointFor(const objects::ObjectDetectionInput& det,
   spec.pitch = info->pitch;
   const auto parent = planes_.find(info->parent_id);
   if (parent != planes_.end() && parent->second.plane.has_plane()) {
-    spec.parent_plane = parent->second.plane.plane();
+    spec.parent_plane = parent->second.plane.reported_plane();
   }
   if (!IsAxisJoint(spec.type)) return objects::ResolveJointOrFree(spec);
 
@@ -114,7 +114,7 @@ joints::Joint ObjectStage::JointFor(const objects::ObjectDetectionInput& det,
   Eigen::Vector3d up = world_from_camera.so3() * Eigen::Vector3d(0.0, -1.0, 0.0);
   for (const auto& [cls, ps] : planes_) {
     if (cls == info->parent_id || !ps.plane.has_plane()) continue;
-    const Eigen::Vector3d m = ps.plane.plane().head<3>().normalized();
+    const Eigen::Vector3d m = ps.plane.reported_plane().head<3>().normalized();
     if (std::abs(m.dot(up)) > 0.9) {
       up = m.dot(up) > 0 ? m : Eigen::Vector3d(-m);
       break;
@@ -169,7 +169,15 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
     const int cls = semantic::ClassOf(f.labels[i]);
     auto it = planes_.find(cls);
     if (it == planes_.end() || !f.is_static[i]) continue;
-    it->second.points.push_back(*p_world[i]);
+    // Depth noise z² σ_d s / (f b) along the ray, s = the level's scale.
+    const double sigma_z = p->z() * p->z() * options_.plane_disparity_sigma_px *
+                           std::pow(config_.options.scale_factor, f.keypoints[i].octave) /
+                           (cam.fx * cam.baseline);
+    semantic::StereoPlanePoint sp;
+    sp.point = *p_world[i];
+    sp.ray = world_from_camera.so3() * p->normalized();
+    sp.sigma_along_m = sigma_z * p->norm() / p->z();
+    it->second.points.push_back(sp);
     if (static_cast<int>(it->second.points.size()) > options_.max_plane_points) {
       it->second.points.pop_front();
     }
@@ -208,14 +216,14 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
   }
   for (auto& [cls, ps] : planes_) {
     if (ps.cluster_id < 0) continue;
-    const std::vector<Eigen::Vector3d> pts(ps.points.begin(), ps.points.end());
+    const std::vector<semantic::StereoPlanePoint> pts(ps.points.begin(), ps.points.end());
     if (ps.plane.Update(pts, &rng_)) {
       ClusterEvent e;
       e.type = ClusterEventType::kPlaneUpdated;
       e.cluster_id = ps.cluster_id;
       e.class_id = cls;
       e.is_dynamic = false;
-      e.plane = ps.plane.plane();
+      e.plane = ps.plane.reported_plane();
       out.cluster_events.push_back(e);
     }
   }
@@ -595,10 +603,15 @@ void ObjectStage::Write(BinaryWriter* w) const {
     w->Pod<int32_t>(cls);
     w->Pod<uint8_t>(ps.plane.has_plane());
     WriteVec(ps.plane.plane(), w);
+    WriteVec(ps.plane.reported_plane(), w);  // format 7
     w->Pod<int32_t>(ps.plane.num_points_at_fit());
     w->Pod<int32_t>(ps.plane.num_inliers());
     w->Pod<uint64_t>(ps.points.size());
-    for (const Eigen::Vector3d& p : ps.points) WriteVec(p, w);
+    for (const semantic::StereoPlanePoint& p : ps.points) {
+      WriteVec(p.point, w);
+      WriteVec(p.ray, w);  // format 7
+      w->Pod(p.sigma_along_m);
+    }
     w->Pod(ps.cluster_id);
   }
   // Tracked objects.
@@ -669,13 +682,26 @@ absl::Status ObjectStage::Read(BinaryReader* r, uint32_t version) {
     if (it == planes.end()) return corrupt("plane class not in the configuration");
     const bool has_plane = r->Pod<uint8_t>() != 0;
     const Eigen::Vector4d plane = ReadVec<Eigen::Vector4d>(r);
+    const Eigen::Vector4d reported = version >= 7 ? ReadVec<Eigen::Vector4d>(r) : plane;
     const int at_fit = r->Pod<int32_t>();
     const int inliers = r->Pod<int32_t>();
-    it->second.plane.RestoreState(has_plane, plane, at_fit, inliers);
-    const uint64_t np = r->Count(24);
+    if (!reported.allFinite() || (has_plane && reported.head<3>().norm() < 1e-9)) {
+      return corrupt("plane");
+    }
+    it->second.plane.RestoreState(has_plane, plane, reported, at_fit, inliers);
+    const uint64_t np = r->Count(version >= 7 ? 56 : 24);
     it->second.points.clear();
     for (uint64_t i = 0; i < np && r->ok(); ++i) {
-      it->second.points.push_back(ReadVec<Eigen::Vector3d>(r));
+      semantic::StereoPlanePoint p;
+      p.point = ReadVec<Eigen::Vector3d>(r);
+      if (version >= 7) {  // before: noise not known
+        p.ray = ReadVec<Eigen::Vector3d>(r);
+        p.sigma_along_m = r->Pod<double>();
+      }
+      if (!p.point.allFinite() || !p.ray.allFinite() || !std::isfinite(p.sigma_along_m)) {
+        return corrupt("plane point");
+      }
+      it->second.points.push_back(p);
     }
     it->second.cluster_id = r->Pod<int64_t>();
     if (!r->ok() || !plane.allFinite() || (has_plane && plane.head<3>().norm() < 1e-9)) {
@@ -788,7 +814,7 @@ void ObjectStage::AddToSnapshot(MapSnapshot* snapshot) const {
     out.is_dynamic = config_.classes.IsDynamic(c.class_id);
     if (auto p = plane_of_cluster.find(id);
         p != plane_of_cluster.end() && p->second->plane.has_plane()) {
-      out.plane = p->second->plane.plane();
+      out.plane = p->second->plane.reported_plane();
     }
     if (auto o = object_of_cluster.find(id); o != object_of_cluster.end()) {
       out.trajectory.reserve(o->second->history.size());

@@ -55,6 +55,10 @@ struct ObjectStageOptions {
   double max_plane_depth_m = 30.0;  // plane points further away are not used
   int max_plane_points = 4000;      // per plane class (oldest dropped)
   double plane_inlier_m = 0.05;     // RANSAC inlier distance
+  // Disparity noise of a plane point on pyramid level 0 (times 1.2^level on
+  // coarser levels): with the viewing ray it weights the point in the plane's
+  // refinement (semantic::StereoPlanePoint, RefinePlaneWeighted).
+  double plane_disparity_sigma_px = 0.5;
   // Dynamic BA over the last frames (0: off). The window is also bounded by
   // SlamOptions::temporal_window_s. SlamSystem sets it from
   // SlamOptions::object_ba_window_frames (10 by default; the solve is
@@ -119,7 +123,7 @@ class ObjectStage {
  private:
   struct PlaneState {
     semantic::ClusterPlane plane;
-    std::deque<Eigen::Vector3d> points;
+    std::deque<semantic::StereoPlanePoint> points;
     int64_t cluster_id = -1;
   };
   joints::Joint JointFor(const objects::ObjectDetectionInput& det,

@@ -40,7 +40,10 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // 6: + each object's settled poses (those older than its history) and the
 // trajectories of removed objects (ObjectTracker::Trajectories). Older files
 // load with trajectories that start at the history's first pose.
-constexpr uint32_t kFormatVersion = 6;
+// 7: + each plane point's viewing ray and depth noise (the weighted plane
+// refinement, semantic::RefinePlaneWeighted). Older files load with points of
+// unknown noise (PlaneRefineOptions::unknown_sigma_m).
+constexpr uint32_t kFormatVersion = 7;
 
 tracking::TrackerOptions TrackerOptionsFrom(const SlamOptions& o) {
   tracking::TrackerOptions t;

@@ -60,6 +60,15 @@ class CarSequence {
   // of noise_px, as when most matches are wrong.
   void set_extra_noise_px(double sigma_px) { extra_noise_ = sigma_px; }
   void set_shown_points(size_t n) { set_shown_range(0, n); }
+  // The camera's height estimate drifts by this much per frame (world y):
+  // the tracker gets the drifting pose, and the road plane as that camera
+  // sees it (shifted with it), as a SLAM camera's road plane fitted on its
+  // own recent points is. The images are the true ones.
+  void set_camera_height_drift(double m_per_frame) { height_drift_ = m_per_frame; }
+  // Camera pose the tracker was given for the last frame (see above).
+  const SE3d& camera_from_world_given() const { return camera_from_world_given_; }
+  // True camera pose of the last frame.
+  const SE3d& camera_from_world_true() const { return camera_from_world_true_; }
   // Only points [begin, end) are seen (end 0: all), as when the camera comes
   // to see other faces of the car.
   void set_shown_range(size_t begin, size_t end) {
@@ -138,20 +147,28 @@ class CarSequence {
       det.box = cv::Rect2d(x0 - 3, y0 - 3, x1 - x0 + 6, y1 - y0 + 6);
       JointSpec spec;
       spec.type = joints::JointType::kPlanar;
-      spec.parent_plane = road_;
+      // The road in the drifting camera's world: π(X − δ).
+      spec.parent_plane = semantic::NormalizePlane(Eigen::Vector4d(
+          road_.x(), road_.y(), road_.z(), road_.w() - road_.head<3>().dot(Drift())));
       spec.anchor = world_from_object_.translation();
       det.joint = ResolveJointOrFree(spec);
       f.detections.push_back(det);
     }
+    camera_from_world_true_ = f.camera_from_world;
+    f.camera_from_world = f.camera_from_world * SE3d(geometry::SO3d(), -Drift());
+    camera_from_world_given_ = f.camera_from_world;
     ++index_;
     return f;
   }
 
  private:
   bool Shown(size_t k) const { return k >= shown_begin_ && (shown_ == 0 || k < shown_); }
+  Eigen::Vector3d Drift() const { return Eigen::Vector3d(0.0, height_drift_ * index_, 0.0); }
 
   double noise_;
   double extra_noise_ = 0.0;
+  double height_drift_ = 0.0;
+  SE3d camera_from_world_given_, camera_from_world_true_;
   std::mt19937_64 rng_;
   geometry::StereoCamera cam_;
   Eigen::Vector4d road_;
