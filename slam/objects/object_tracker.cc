@@ -1007,6 +1007,14 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
       if (obj.cluster_id == cluster_id) obj.cluster_id = kNoCluster;
     }
   };
+  // An object seen on a detection in this frame.
+  auto mark_seen = [&](const ObjectDetectionInput& det, TrackedObject* obj) {
+    obj->instance_id = det.instance_id;
+    obj->state = ObjectState::kTracked;
+    obj->frames_lost = 0;
+    obj->last_seen_frame = frame.frame_index;
+    obj->last_box = det.box;
+  };
   for (const ObjectDetectionInput& det : frame.detections) {
     TrackedObject* o = nullptr;
     for (auto& [id, obj] : objects_) {
@@ -1028,11 +1036,7 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
     }
     if (ok) {
       o->class_id = det.class_id;
-      o->instance_id = det.instance_id;
-      o->state = ObjectState::kTracked;
-      o->frames_lost = 0;
-      o->last_seen_frame = frame.frame_index;
-      o->last_box = det.box;
+      mark_seen(det, o);
       ++stats_.tracked;
       RecordPose(ctx, o);
     } else {
@@ -1058,11 +1062,7 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
   auto take_detection = [&](const ObjectDetectionInput& det, TrackedObject* obj) {
     release_cluster(det.cluster_id);
     obj->cluster_id = det.cluster_id;
-    obj->instance_id = det.instance_id;
-    obj->state = ObjectState::kTracked;
-    obj->frames_lost = 0;
-    obj->last_seen_frame = frame.frame_index;
-    obj->last_box = det.box;
+    mark_seen(det, obj);
     handled.insert(obj->id);
     RecordPose(ctx, obj);
   };
