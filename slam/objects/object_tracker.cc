@@ -187,6 +187,9 @@ absl::Status ObjectTrackerOptions::Validate() const {
         "object tracker needs acceleration_sigma_mps2 >= 0, angular_acceleration_sigma_radps2 > 0, "
         "max_step_sigma_px > 0, 0 < filter_gate_confidence < 1 and max_coast_frames >= 0");
   }
+  if (std::isnan(turn_rate_sigma_radps)) {
+    return absl::InvalidArgumentError("object tracker turn_rate_sigma_radps must be a number");
+  }
   return absl::OkStatus();
 }
 
@@ -383,6 +386,7 @@ void ObjectTracker::AddNewPoints(const FrameContext& ctx,
     ObjectPoint p;
     p.id = o->next_point_id++;
     p.point_in_object = object_from_camera * *p_c;
+    p.sigma_in_object = object_from_camera.rotation() * StereoPointSigma(kps, k, *p_c);
     if (!kps.descriptors.empty()) p.descriptor = kps.descriptors.row(static_cast<int>(k)).clone();
     p.patch = TexturedPatch(ctx.frame.left, kps.uv[k], options_.search.patch_half_size);
     p.last_uv = kps.uv[k];
@@ -423,10 +427,7 @@ bool ObjectTracker::Create(const FrameContext& ctx,
   // block relative to level 0's): the matcher refines on that level.
   std::vector<double> sigmas;
   for (size_t j = 0; j < idx.size(); ++j) {
-    const double s = kps.stereo_support_px.empty()
-                         ? 1.0
-                         : kps.stereo_support_px[idx[j]] / options_.stereo_level0_half_px;
-    sigmas.push_back(DepthNoise(p_cam[j].z(), s));
+    sigmas.push_back(DepthNoise(p_cam[j].z(), StereoLevelScale(kps, idx[j])));
   }
   if (options_.max_create_depth_sigma_m > 0.0 && Median(sigmas) > options_.max_create_depth_sigma_m)
     return false;
@@ -455,6 +456,8 @@ bool ObjectTracker::Create(const FrameContext& ctx,
     ObjectPoint p;
     p.id = o->next_point_id++;
     p.point_in_object = object_from_world * p_world[m];
+    p.sigma_in_object = (object_from_world * ctx.world_from_camera).rotation() *
+                        StereoPointSigma(kps, k, p_cam[kept[m]]);
     if (!kps.descriptors.empty()) p.descriptor = kps.descriptors.row(static_cast<int>(k)).clone();
     p.patch = TexturedPatch(ctx.frame.left, kps.uv[k], options_.search.patch_half_size);
     p.last_uv = kps.uv[k];
@@ -477,6 +480,17 @@ bool ObjectTracker::Create(const FrameContext& ctx,
 
 double ObjectTracker::DepthNoise(double depth, double level_scale) const {
   return depth * depth * options_.disparity_sigma_px * level_scale / camera_.bf();
+}
+
+double ObjectTracker::StereoLevelScale(const FrameKeypoints& kps, size_t k) const {
+  return kps.stereo_support_px.empty() ? 1.0
+                                       : kps.stereo_support_px[k] / options_.stereo_level0_half_px;
+}
+
+Eigen::Vector3d ObjectTracker::StereoPointSigma(const FrameKeypoints& kps,
+                                                size_t k,
+                                                const Eigen::Vector3d& p_c) const {
+  return DepthNoise(p_c.z(), StereoLevelScale(kps, k)) / p_c.z() * p_c;
 }
 
 bool ObjectTracker::BeyondTrackingRange(const SE3d& camera_from_object) const {
@@ -535,6 +549,18 @@ bool ObjectTracker::FilterStep(const TrackedObject& o,
   return true;
 }
 
+TwistPrior ObjectTracker::TurnPrior(const joints::Joint& joint, double seconds) const {
+  TwistPrior prior;
+  const double sigma = options_.turn_rate_sigma_radps;
+  if (!(sigma > 0.0) || !(seconds > 0.0) || joint.type() != joints::JointType::kPlanar) {
+    return prior;
+  }
+  prior.sqrt_information = Eigen::Matrix<double, 1, 6>::Zero();
+  prior.sqrt_information.rightCols<3>() =
+      joint.world_from_joint().rotation().col(2).transpose() / (sigma * seconds);
+  return prior;
+}
+
 bool ObjectTracker::Track(const FrameContext& ctx,
                           const ObjectDetectionInput& det,
                           TrackedObject* o) {
@@ -570,6 +596,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   auto add_obs = [&](size_t point, const Eigen::Vector2d& uv, double u_right) {
     TwistObservation t;
     t.point_in_object = o->points[point].point_in_object;
+    t.point_sigma_in_object = o->points[point].sigma_in_object;
     t.uv = uv;
     t.u_right = u_right;
     obs.push_back(t);
@@ -597,6 +624,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   const Matrix6d projector = o->joint.WorldProjector();
   // The constrained twist from the current observations, when there are
   // enough of them and the solver converged.
+  const TwistPrior turn_prior = TurnPrior(o->joint, ctx.dt);
   auto estimate = [&](const Vector6d& start) -> std::optional<TwistEstimate> {
     if (static_cast<int>(obs.size()) < options_.min_points_to_track) return std::nullopt;
     absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_,
@@ -605,7 +633,8 @@ bool ObjectTracker::Track(const FrameContext& ctx,
                                                           projector,
                                                           obs,
                                                           start,
-                                                          options_.estimator);
+                                                          options_.estimator,
+                                                          turn_prior);
     if (!e.ok() || !e->success) return std::nullopt;
     return *std::move(e);
   };
@@ -832,6 +861,7 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
     if (!InsideDetection(det, f.keypoints.uv[kp], 2.0)) continue;
     TwistObservation t;
     t.point_in_object = pts[k];
+    t.point_sigma_in_object = o->points[k].sigma_in_object;
     t.uv = f.keypoints.uv[kp];
     t.u_right = ObjectStereo(ctx, det, kp);
     obs.push_back(t);
@@ -844,13 +874,15 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
       static_cast<int>(obs.size()) < options_.min_points_to_track) {
     return false;
   }
-  absl::StatusOr<TwistEstimate> est = EstimateObjectTwist(camera_,
-                                                          f.camera_from_world,
-                                                          o->world_from_object,
-                                                          projector,
-                                                          obs,
-                                                          initial,
-                                                          options_.estimator);
+  absl::StatusOr<TwistEstimate> est =
+      EstimateObjectTwist(camera_,
+                          f.camera_from_world,
+                          o->world_from_object,
+                          projector,
+                          obs,
+                          initial,
+                          options_.estimator,
+                          TurnPrior(EffectiveJoint(det.joint), std::max(1.0, steps) * ctx.dt));
   // A residual scale no tracked step may have (max_step_sigma_px): the
   // matches do not agree on a motion.
   if (!est.ok() || !est->success || est->sigma_px > options_.max_step_sigma_px) return false;
@@ -944,6 +976,7 @@ void ObjectTracker::Continue(const SE3d& predicted,
     new_id[p.id] = lost->next_point_id;
     p.id = lost->next_point_id++;
     p.point_in_object = lost_from_created * p.point_in_object;
+    p.sigma_in_object = lost_from_created.rotation() * p.sigma_in_object;
     lost->points.push_back(std::move(p));
   }
   lost->pending_observations.clear();

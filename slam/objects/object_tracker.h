@@ -49,6 +49,9 @@ namespace twist::objects {
 struct ObjectPoint {
   int64_t id = 0;  // unique within its object
   Eigen::Vector3d point_in_object = Eigen::Vector3d::Zero();
+  // Its stereo depth noise (one σ) along the ray it was triangulated on, in
+  // the object frame (TwistObservation::point_sigma_in_object).
+  Eigen::Vector3d sigma_in_object = Eigen::Vector3d::Zero();
   cv::Mat descriptor;                                 // CV_8U row (may be empty)
   cv::Mat patch;                                      // CV_32F reference patch (may be empty)
   Eigen::Vector2d last_uv = Eigen::Vector2d::Zero();  // in the last frame it was seen
@@ -332,6 +335,15 @@ struct ObjectTrackerOptions {
   // own test, below). acceleration_sigma_mps2 = 0: off.
   double acceleration_sigma_mps2 = 4.0;
   double angular_acceleration_sigma_radps2 = 0.5;
+  // Cars mostly drive straight: a planar object's rate of turn about its
+  // joint's axis has this prior, zero mean, fused with every tracked step as
+  // a measurement. The data alone do not hold a car's yaw: the stereo depth
+  // of its points is noisy (±0.5 m at 25 m), and the motion that keeps the
+  // creation view of that noisy structure explains the images best, so a car
+  // crossing the view turned with its bearing, 1-2° per frame
+  // (docs/objects.md §27). A real turn (0.3 rad/s) is seen well enough by
+  // the data to get through. <= 0: no prior.
+  double turn_rate_sigma_radps = 0.1;
   double filter_gate_confidence = 0.999;
   double max_step_sigma_px = 4.0;
   int max_coast_frames = 3;
@@ -411,6 +423,9 @@ class ObjectTracker {
                   const geometry::Vector6d& predicted,
                   const geometry::Matrix6d& predicted_covariance,
                   TwistEstimate* estimate) const;
+  // The zero-turn prior (turn_rate_sigma_radps) of a planar object's motion
+  // over `seconds`; empty for other joints.
+  TwistPrior TurnPrior(const joints::Joint& joint, double seconds) const;
   // The filter's process noise over one step of `dt` seconds: a random
   // acceleration (acceleration_sigma_mps2, angular_acceleration_sigma_radps2)
   // at the object's origin, as a change of its per-step world twist projected
@@ -419,6 +434,13 @@ class ObjectTracker {
   // Stereo depth noise z² σ_d s / (f b) of a point at `depth`, s the scale of
   // its keypoint's pyramid level (1: level 0).
   double DepthNoise(double depth, double level_scale) const;
+  // The pyramid-level scale s of keypoint k's stereo match (DepthNoise).
+  double StereoLevelScale(const FrameKeypoints& keypoints, size_t k) const;
+  // One σ of a stereo point p_c (camera frame) from keypoint k: its depth
+  // noise along its ray, in the camera frame.
+  Eigen::Vector3d StereoPointSigma(const FrameKeypoints& keypoints,
+                                   size_t k,
+                                   const Eigen::Vector3d& p_c) const;
   // Whether an object at `camera_from_object` is too far to track
   // (max_track_depth_sigma_m).
   bool BeyondTrackingRange(const geometry::SE3d& camera_from_object) const;

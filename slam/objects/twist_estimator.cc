@@ -21,14 +21,15 @@ using geometry::SE3d;
 using geometry::Vector6d;
 using Basis = Eigen::Matrix<double, 6, Eigen::Dynamic>;
 
+// The constants of one observation's cost.
 template <int N>
-ceres::CostFunction* MakeCost(const geometry::StereoCamera& camera,
-                              const SE3d& camera_from_world,
-                              const SE3d& world_from_object_previous,
-                              const Matrix6d& projector,
-                              const TwistObservation& obs,
-                              double sqrt_information,
-                              bool autodiff) {
+optimization::TwistTrackingObservation<N> CostConstants(const geometry::StereoCamera& camera,
+                                                        const SE3d& camera_from_world,
+                                                        const SE3d& world_from_object_previous,
+                                                        const Matrix6d& projector,
+                                                        const TwistObservation& obs,
+                                                        const Eigen::Matrix3d& whitening,
+                                                        double sqrt_information) {
   optimization::TwistTrackingObservation<N> o;
   o.camera = camera;
   if constexpr (N == 2) {
@@ -37,13 +38,85 @@ ceres::CostFunction* MakeCost(const geometry::StereoCamera& camera,
     o.observed = Eigen::Vector3d(obs.uv.x(), obs.uv.y(), obs.u_right);
   }
   o.sqrt_information = sqrt_information;
+  o.whitening = whitening.topLeftCorner<N, N>();
   o.camera_from_world = camera_from_world;
   o.world_from_object_previous = world_from_object_previous;
   o.world_projector = projector;
   o.point_in_object = obs.point_in_object;
+  o.point_sigma_in_object = obs.point_sigma_in_object;
+  return o;
+}
+
+template <int N>
+ceres::CostFunction* MakeCost(const geometry::StereoCamera& camera,
+                              const SE3d& camera_from_world,
+                              const SE3d& world_from_object_previous,
+                              const Matrix6d& projector,
+                              const TwistObservation& obs,
+                              const Eigen::Matrix3d& whitening,
+                              double sqrt_information,
+                              bool autodiff) {
+  const auto o = CostConstants<N>(camera,
+                                  camera_from_world,
+                                  world_from_object_previous,
+                                  projector,
+                                  obs,
+                                  whitening,
+                                  sqrt_information);
   if (autodiff) return optimization::TwistTrackingFunctor<N>::Create(o);
   return new optimization::TwistTrackingCost<N>(o);
 }
+
+// The cost with the point's own error δ as a second parameter.
+template <int N>
+ceres::CostFunction* MakeDepthCost(const geometry::StereoCamera& camera,
+                                   const SE3d& camera_from_world,
+                                   const SE3d& world_from_object_previous,
+                                   const Matrix6d& projector,
+                                   const TwistObservation& obs,
+                                   double sqrt_information,
+                                   bool autodiff) {
+  const auto o = CostConstants<N>(camera,
+                                  camera_from_world,
+                                  world_from_object_previous,
+                                  projector,
+                                  obs,
+                                  Eigen::Matrix3d::Identity(),
+                                  sqrt_information);
+  if (autodiff) return optimization::TwistDepthTrackingFunctor<N>::Create(o);
+  return new optimization::TwistDepthTrackingCost<N>(o);
+}
+
+// r = δ: the N(0, 1) prior of a point's own error.
+class UnitPrior final : public ceres::SizedCostFunction<1, 1> {
+ public:
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override {
+    residuals[0] = parameters[0][0];
+    if (jacobians != nullptr && jacobians[0] != nullptr) jacobians[0][0] = 1.0;
+    return true;
+  }
+};
+
+// r = a·ξ: one row of a linear twist prior.
+class LinearTwistPrior final : public ceres::SizedCostFunction<1, 6> {
+ public:
+  explicit LinearTwistPrior(const Vector6d& row) : row_(row) {}
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override {
+    residuals[0] = row_.dot(Eigen::Map<const Vector6d>(parameters[0]));
+    if (jacobians != nullptr && jacobians[0] != nullptr) {
+      Eigen::Map<Vector6d> jacobian(jacobians[0]);
+      jacobian = row_;
+    }
+    return true;
+  }
+
+ private:
+  Vector6d row_;
+};
 
 double Median(std::vector<double>* v) {
   if (v->empty()) return 0.0;
@@ -102,13 +175,40 @@ std::optional<Eigen::Vector3d> TwistResidual(const geometry::StereoCamera& camer
       obs.uv.x() - uvr.x(), obs.uv.y() - uvr.y(), obs.stereo() ? obs.u_right - uvr.z() : 0.0);
 }
 
+Eigen::Matrix3d ObservationWhitening(const geometry::StereoCamera& camera,
+                                     const SE3d& camera_from_world,
+                                     const SE3d& world_from_object_previous,
+                                     const Vector6d& constrained_twist,
+                                     const TwistObservation& obs,
+                                     double sigma_px) {
+  Eigen::Matrix3d w = Eigen::Matrix3d::Identity();
+  if (obs.point_sigma_in_object.isZero() || !(sigma_px > 0.0)) return w;
+  const SE3d camera_from_object =
+      camera_from_world * SE3d::Exp(constrained_twist) * world_from_object_previous;
+  const Eigen::Vector3d p_c = camera_from_object * obs.point_in_object;
+  if (!(p_c.z() > optimization::kMinProjectionDepth)) return w;
+  const Eigen::Vector3d d_c = camera_from_object.rotation() * obs.point_sigma_in_object;
+  Eigen::Vector3d g = Eigen::Vector3d::Zero();
+  if (obs.stereo()) {
+    g = optimization::ProjectionJacobian<3>(camera, p_c) * d_c;
+  } else {
+    g.head<2>() = optimization::ProjectionJacobian<2>(camera, p_c) * d_c;
+  }
+  const double g2 = g.squaredNorm() / (sigma_px * sigma_px);
+  if (!(g2 > 0.0)) return w;
+  const Eigen::Vector3d unit = g.normalized();
+  w -= (1.0 - 1.0 / std::sqrt(1.0 + g2)) * unit * unit.transpose();
+  return w;
+}
+
 absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& camera,
                                                   const SE3d& camera_from_world,
                                                   const SE3d& world_from_object_previous,
                                                   const Matrix6d& world_projector,
                                                   const std::vector<TwistObservation>& observations,
                                                   const Vector6d& initial_twist,
-                                                  const TwistEstimatorOptions& options) {
+                                                  const TwistEstimatorOptions& options,
+                                                  const TwistPrior& prior) {
   if (absl::Status s = options.Validate(); !s.ok()) return s;
   const size_t n = observations.size();
   TwistEstimate est;
@@ -117,11 +217,20 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
   // Start inside range(Π): ξ0 = B Bᵀ Π ξ_init.
   Vector6d xi = basis * (basis.transpose() * (world_projector * initial_twist));
 
+  // Whitened residuals W_j r_j at a twist, W_j at that twist and scale σ.
+  std::vector<Eigen::Matrix3d> whitening(n, Eigen::Matrix3d::Identity());
+  auto update_whitening = [&](const Vector6d& twist, double sigma_px) {
+    for (size_t j = 0; j < n; ++j) {
+      whitening[j] = ObservationWhitening(
+          camera, camera_from_world, world_from_object_previous, twist, observations[j], sigma_px);
+    }
+  };
   auto residuals_at = [&](const Vector6d& twist) {
     std::vector<std::optional<Eigen::Vector3d>> res(n);
     for (size_t j = 0; j < n; ++j) {
       res[j] = TwistResidual(
           camera, camera_from_world, world_from_object_previous, twist, observations[j]);
+      if (res[j]) *res[j] = whitening[j] * *res[j];
     }
     return res;
   };
@@ -138,10 +247,14 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
     return std::clamp(MadScale(comps), options.min_sigma_px, options.max_sigma_px);
   };
 
+  std::vector<double> point_errors(n, 0.0);  // δ_j, in units of σ_j
   std::vector<std::optional<Eigen::Vector3d>> res = residuals_at(xi);
   std::vector<bool> active(n);
   for (size_t j = 0; j < n; ++j) active[j] = res[j].has_value();
   double sigma = mad(res, &active);
+  update_whitening(xi, sigma);
+  res = residuals_at(xi);
+  sigma = mad(res, &active);
 
   for (int round = 0; round < options.max_rounds; ++round) {
     const int num_active = static_cast<int>(std::count(active.begin(), active.end(), true));
@@ -152,30 +265,70 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
       problem_options.manifold_ownership = ceres::TAKE_OWNERSHIP;
       ceres::Problem problem(problem_options);
       double* x = xi.data();
+      const auto ordering = std::make_shared<ceres::ParameterBlockOrdering>();
       for (size_t j = 0; j < n; ++j) {
         if (!active[j]) continue;
-        ceres::CostFunction* cost = observations[j].stereo()
-                                        ? MakeCost<3>(camera,
-                                                      camera_from_world,
-                                                      world_from_object_previous,
-                                                      world_projector,
-                                                      observations[j],
-                                                      1.0 / sigma,
-                                                      options.use_autodiff)
-                                        : MakeCost<2>(camera,
-                                                      camera_from_world,
-                                                      world_from_object_previous,
-                                                      world_projector,
-                                                      observations[j],
-                                                      1.0 / sigma,
-                                                      options.use_autodiff);
+        const TwistObservation& ob = observations[j];
+        const bool stereo = ob.stereo();
+        if (options.estimate_point_errors && !ob.point_sigma_in_object.isZero()) {
+          // The point's own error along its uncertain direction, with its
+          // prior N(0, 1): the twist and the structure's errors together
+          // (errors in variables), not the twist under a structure taken as
+          // exact.
+          ceres::CostFunction* cost = stereo ? MakeDepthCost<3>(camera,
+                                                                camera_from_world,
+                                                                world_from_object_previous,
+                                                                world_projector,
+                                                                ob,
+                                                                1.0 / sigma,
+                                                                options.use_autodiff)
+                                             : MakeDepthCost<2>(camera,
+                                                                camera_from_world,
+                                                                world_from_object_previous,
+                                                                world_projector,
+                                                                ob,
+                                                                1.0 / sigma,
+                                                                options.use_autodiff);
+          problem.AddResidualBlock(
+              cost, new ceres::HuberLoss(options.huber_delta), x, &point_errors[j]);
+          problem.AddResidualBlock(new UnitPrior, nullptr, &point_errors[j]);
+          ordering->AddElementToGroup(&point_errors[j], 0);
+          continue;
+        }
+        // An exact point (identity), or the whitening alone.
+        ceres::CostFunction* cost = stereo ? MakeCost<3>(camera,
+                                                         camera_from_world,
+                                                         world_from_object_previous,
+                                                         world_projector,
+                                                         ob,
+                                                         whitening[j],
+                                                         1.0 / sigma,
+                                                         options.use_autodiff)
+                                           : MakeCost<2>(camera,
+                                                         camera_from_world,
+                                                         world_from_object_previous,
+                                                         world_projector,
+                                                         ob,
+                                                         whitening[j],
+                                                         1.0 / sigma,
+                                                         options.use_autodiff);
         problem.AddResidualBlock(cost, new ceres::HuberLoss(options.huber_delta), x);
       }
+      for (Eigen::Index row = 0; row < prior.sqrt_information.rows(); ++row) {
+        problem.AddResidualBlock(
+            new LinearTwistPrior(prior.sqrt_information.row(row).transpose()), nullptr, x);
+      }
+      ordering->AddElementToGroup(x, 1);
       if (basis.cols() < 6) problem.SetManifold(x, new LinearSubspaceManifold(basis));
       ceres::Solver::Options solver_options;
       solver_options.minimizer_type = ceres::TRUST_REGION;
       solver_options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-      solver_options.linear_solver_type = ceres::DENSE_QR;
+      if (ordering->NumElements() > 1) {
+        solver_options.linear_solver_type = ceres::DENSE_SCHUR;
+        solver_options.linear_solver_ordering = ordering;
+      } else {
+        solver_options.linear_solver_type = ceres::DENSE_QR;
+      }
       solver_options.max_num_iterations = options.max_iterations;
       solver_options.function_tolerance = options.function_tolerance;
       solver_options.parameter_tolerance = options.parameter_tolerance;
@@ -186,7 +339,9 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
       ceres::Solve(solver_options, &problem, &summary);
       est.iterations += static_cast<int>(summary.iterations.size());
     }
-    // New scale from the current inliers, then re-gate every observation.
+    // New scale from the current inliers (whitened at the new twist), then
+    // re-gate every observation.
+    update_whitening(xi, sigma);
     res = residuals_at(xi);
     sigma = mad(res, &active);
     std::vector<bool> next(n, false);
@@ -231,6 +386,7 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
                                                                         world_from_object_previous,
                                                                         world_projector,
                                                                         observations[j],
+                                                                        whitening[j],
                                                                         1.0,
                                                                         false)
                                                           : MakeCost<2>(camera,
@@ -238,6 +394,7 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
                                                                         world_from_object_previous,
                                                                         world_projector,
                                                                         observations[j],
+                                                                        whitening[j],
                                                                         1.0,
                                                                         false));
       const int rows = stereo ? 3 : 2;
@@ -252,6 +409,8 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
       const double weight = s2 <= huber2 ? 1.0 : options.huber_delta / std::sqrt(s2);
       info += weight * jac.transpose() * jac / (scale_all * scale_all);
     }
+    const Eigen::MatrixXd prior_rows = prior.sqrt_information * basis;
+    info += prior_rows.transpose() * prior_rows;
     Eigen::LDLT<Eigen::MatrixXd> ldlt(info);
     const double info_scale = std::max(1.0, info.diagonal().maxCoeff());
     if (ldlt.info() == Eigen::Success && ldlt.isPositive() &&
@@ -279,7 +438,13 @@ double TwistSignificance(const geometry::StereoCamera& camera,
     const auto r1 = TwistResidual(
         camera, camera_from_world, world_from_object_previous, estimate.twist, observations[j]);
     if (!r0 || !r1) continue;
-    gain += (r0->squaredNorm() - r1->squaredNorm()) / sigma2;
+    const Eigen::Matrix3d w = ObservationWhitening(camera,
+                                                   camera_from_world,
+                                                   world_from_object_previous,
+                                                   estimate.twist,
+                                                   observations[j],
+                                                   estimate.sigma_px);
+    gain += ((w * *r0).squaredNorm() - (w * *r1).squaredNorm()) / sigma2;
   }
   return gain;
 }

@@ -10,6 +10,15 @@
 // after every round, observations with ‖r_j/σ‖² above the χ² gate are
 // rejected and the problem is solved again (outliers may come back).
 //
+// A point is not exact: one triangulated by stereo at 26 m is uncertain by
+// ~0.9 m along its ray. Its residual's covariance is then σ² I + g gᵀ, with g
+// the image of its uncertainty (∂π/∂p_c times the point's σ vector in the
+// camera); each residual is whitened by (I + g gᵀ/σ²)^(−1/2), computed at the
+// start of every round. Without it the twist that explains the noisy
+// structure best is the one that keeps the viewing geometry of its creation:
+// a car crossing the view seemed to turn with its bearing (docs/objects.md
+// §27).
+//
 // Π is the joint's world projector (joints::Joint::WorldProjector()); the
 // solver moves ξ only inside range(Π) (a linear-subspace manifold), so the
 // normal equations stay well conditioned and the result satisfies Π ξ = ξ.
@@ -29,6 +38,10 @@ namespace twist::objects {
 // One 2D (or rectified-stereo) observation in frame i of an object point.
 struct TwistObservation {
   Eigen::Vector3d point_in_object = Eigen::Vector3d::Zero();
+  // The point's own uncertainty: one standard deviation along the direction
+  // it is uncertain in, in the object frame (a stereo point: its depth noise
+  // along the ray it was triangulated on). Zero: an exact point.
+  Eigen::Vector3d point_sigma_in_object = Eigen::Vector3d::Zero();
   Eigen::Vector2d uv = Eigen::Vector2d::Zero();  // left image, pixels
   double u_right = -1.0;                         // right image u; < 0: mono
   bool stereo() const { return u_right >= 0.0; }
@@ -47,6 +60,10 @@ struct TwistEstimatorOptions {
   double chi2_stereo = 7.815;
   int min_inliers = 4;        // fewer -> not successful
   bool use_autodiff = false;  // check mode: autodiff twin of the cost
+  // Estimate each point's own error (see point_sigma_in_object) with the
+  // twist; false: the whitening alone (the structure taken as exact in the
+  // solve).
+  bool estimate_point_errors = true;
   double function_tolerance = 1e-12;
   double parameter_tolerance = 1e-12;
 
@@ -65,10 +82,10 @@ struct TwistEstimate {
   int rounds = 0;
   int iterations = 0;  // LM iterations, all rounds
   // Gauss–Newton covariance of `twist` (world frame, one frame step):
-  // B (Jᵀ W J / σ²)⁻¹ Bᵀ over the inliers, with B the basis of range(Π), J the
-  // residuals' Jacobian in that basis, W the Huber weights and σ the MAD
-  // scale. Supported on range(Π). Valid only when `covariance_valid` (at least
-  // as many independent constraints as the joint has degrees of freedom).
+  // B (Jᵀ W J / σ² + Bᵀ AᵀA B)⁻¹ Bᵀ over the inliers (A: the prior), with B the basis of range(Π),
+  // J the residuals' Jacobian in that basis, W the Huber weights and σ the MAD scale. Supported on
+  // range(Π). Valid only when `covariance_valid` (at least as many independent constraints as the
+  // joint has degrees of freedom).
   geometry::Matrix6d covariance = geometry::Matrix6d::Zero();
   bool covariance_valid = false;
 };
@@ -78,6 +95,13 @@ Eigen::Matrix<double, 6, Eigen::Dynamic> ProjectorRangeBasis(const geometry::Mat
 
 // MAD scale estimate 1.4826 · median |r − median(r)| (0 for an empty input).
 double MadScale(std::vector<double> residual_components);
+
+// A zero-mean Gaussian prior on the twist, as rows of its square-root
+// information: the residual A ξ (e.g. a car's rate of turn about its joint's
+// axis, A = [0, axisᵀ] / σ). Empty: no prior.
+struct TwistPrior {
+  Eigen::Matrix<double, Eigen::Dynamic, 6> sqrt_information;
+};
 
 // Estimates the twist. `initial_twist` (e.g. the previous step's twist: the
 // constant-velocity prediction) seeds the solver; it is projected with Π.
@@ -89,7 +113,8 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
                                                   const geometry::Matrix6d& world_projector,
                                                   const std::vector<TwistObservation>& observations,
                                                   const geometry::Vector6d& initial_twist,
-                                                  const TwistEstimatorOptions& options);
+                                                  const TwistEstimatorOptions& options,
+                                                  const TwistPrior& prior = {});
 
 // Likelihood-ratio statistic of a twist estimate against the zero twist over
 // the estimate's inlier observations, in units of its MAD scale:
@@ -106,6 +131,17 @@ double TwistSignificance(const geometry::StereoCamera& camera,
 // Upper quantile of the χ² distribution with dof ∈ [1, 6] degrees of freedom
 // at confidence 0.95, 0.99 or 0.999 (the nearest tabulated confidence).
 double ChiSquareQuantile(int dof, double confidence);
+
+// Whitening W of one observation's residual at a given twist and pixel scale
+// σ: W = (I + g gᵀ/σ²)^(−1/2) = I − (1 − 1/√(1 + |g|²/σ²)) ĝ ĝᵀ (3 x 3; the
+// third row and column are unused for a mono observation). The identity for
+// an exact point or one not in front of the camera.
+Eigen::Matrix3d ObservationWhitening(const geometry::StereoCamera& camera,
+                                     const geometry::SE3d& camera_from_world,
+                                     const geometry::SE3d& world_from_object_previous,
+                                     const geometry::Vector6d& constrained_twist,
+                                     const TwistObservation& observation,
+                                     double sigma_px);
 
 // Residual (observation − prediction) of one observation for a given twist;
 // nullopt when the point is not in front of the camera.

@@ -436,6 +436,7 @@ void WriteTrackedObject(const objects::TrackedObject& o, BinaryWriter* w) {
     WriteVec(p.last_uv, w);
     w->Pod<uint8_t>(p.seen_last_frame);
     w->Pod<int32_t>(p.num_observations);
+    WriteVec(p.sigma_in_object, w);  // format 8
   }
   w->Pod<int32_t>(o.frames_lost);
   w->Pod(o.last_seen_frame);
@@ -471,7 +472,7 @@ objects::TrackedObject ReadTrackedObject(BinaryReader* r, uint32_t version) {
   o.world_from_object = r->Pose();
   o.twist_step = ReadVec<geometry::Vector6d>(r);
   o.step_seconds = r->Pod<double>();
-  const uint64_t np = r->Count(77);  // the smallest point (empty images)
+  const uint64_t np = r->Count(version >= 8 ? 101 : 77);  // the smallest point (empty images)
   o.points.reserve(np);
   for (uint64_t k = 0; k < np && r->ok(); ++k) {
     objects::ObjectPoint p;
@@ -482,6 +483,8 @@ objects::TrackedObject ReadTrackedObject(BinaryReader* r, uint32_t version) {
     p.last_uv = ReadVec<Eigen::Vector2d>(r);
     p.seen_last_frame = r->Pod<uint8_t>() != 0;
     p.num_observations = r->Pod<int32_t>();
+    // Before format 8 the points' own noise was not kept: they count as exact.
+    if (version >= 8) p.sigma_in_object = ReadVec<Eigen::Vector3d>(r);
     o.points.push_back(std::move(p));
   }
   o.frames_lost = r->Pod<int32_t>();
@@ -754,7 +757,9 @@ absl::Status ObjectStage::Read(BinaryReader* r, uint32_t version) {
       if (!h.twist_step.allFinite()) return corrupt("object history");
     }
     for (const objects::ObjectPoint& p : o.points) {
-      if (!p.point_in_object.allFinite() || !p.last_uv.allFinite()) return corrupt("object point");
+      if (!p.point_in_object.allFinite() || !p.sigma_in_object.allFinite() ||
+          !p.last_uv.allFinite())
+        return corrupt("object point");
       // ORB descriptors (32 bytes) and square patches of the tracker's size.
       if (!p.descriptor.empty() &&
           (p.descriptor.type() != CV_8UC1 || p.descriptor.rows != 1 || p.descriptor.cols != 32)) {

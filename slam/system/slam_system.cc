@@ -43,7 +43,10 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // 7: + each plane point's viewing ray and depth noise (the weighted plane
 // refinement, semantic::RefinePlaneWeighted). Older files load with points of
 // unknown noise (PlaneRefineOptions::unknown_sigma_m).
-constexpr uint32_t kFormatVersion = 7;
+// 8: + each object point's stereo noise along its ray
+// (ObjectPoint::sigma_in_object, estimated with each twist). Older files load
+// with exact points.
+constexpr uint32_t kFormatVersion = 8;
 
 tracking::TrackerOptions TrackerOptionsFrom(const SlamOptions& o) {
   tracking::TrackerOptions t;

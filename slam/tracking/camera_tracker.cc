@@ -118,15 +118,26 @@ TrackingState CameraTracker::Track(map::Frame* frame, map::Map* map) {
       }
     }
     ok = inliers > 0;
-  } else {
+  }
+  const bool was_tracking = path != TrackingPath::kNone;
+  auto relocalize = [&]() {
+    frame->ResetMatches();
     frame->camera_from_world = last_frame_.camera_from_world;
     ok = Relocalize(frame, map);
     relocalized = ok;
     path = TrackingPath::kRelocalization;
-  }
+  };
+  if (!was_tracking) relocalize();
   const bool recent_reloc =
       frame->id - last_reloc_frame_id_ < options_.recent_relocalization_frames;
   if (ok) ok = TrackLocalMap(frame, map, relocalized || recent_reloc);
+  if (!ok && was_tracking && options_.relocalize_on_failure) {
+    // Neither the motion model nor the reference keyframe held (the start of
+    // a sharp turn): the frame is relocalized at once rather than lost.
+    VLOG(1) << "frame " << frame->id << ": tracking failed, relocalizing in the same frame";
+    relocalize();
+    if (ok) ok = TrackLocalMap(frame, map, true);
+  }
 
   if (ok) {
     state_ = relocalized ? TrackingState::kRelocalized : TrackingState::kOk;

@@ -47,6 +47,16 @@ class CarSequence {
   const Vector6d& step() const { return step_; }
   // The car's motion per frame in the world (zero: a parked car).
   void set_step(const Vector6d& step) { step_ = step; }
+  // Turns the car about its vertical axis by `rad` before the first frame
+  // (0: its length along the road, world z).
+  void set_heading(double rad) {
+    world_from_object_ = world_from_joint_ * SE3d(geometry::SO3d::Exp(Eigen::Vector3d(0, 0, rad)),
+                                                  Eigen::Vector3d::Zero());
+  }
+  // The dense flow covers this many more pixels around each point's previous
+  // true projection (0: its 2 x 2 block), so that a noisy keypoint still
+  // finds its point's flow.
+  void set_flow_reach(int pixels) { flow_reach_ = pixels; }
   // Added to every vector of the dense flow: a tracker that chains flow from
   // frame to frame drifts by this much per frame.
   void set_flow_bias(const Eigen::Vector2d& bias_px) { flow_bias_ = bias_px; }
@@ -125,8 +135,8 @@ class CarSequence {
                                          : Eigen::Vector2d(true_uv[k] - prev_uv_[k] + flow_bias_);
         const int px = static_cast<int>(std::floor(prev_uv_[k].x()));
         const int py = static_cast<int>(std::floor(prev_uv_[k].y()));
-        for (int dy = 0; dy <= 1; ++dy) {
-          for (int dx = 0; dx <= 1; ++dx) {
+        for (int dy = -flow_reach_; dy <= 1 + flow_reach_; ++dy) {
+          for (int dx = -flow_reach_; dx <= 1 + flow_reach_; ++dx) {
             if (px + dx >= 0 && py + dy >= 0 && px + dx < cam_.width && py + dy < cam_.height) {
               int& who = owner.at<int>(py + dy, px + dx);
               f.flow.at<cv::Vec2f>(py + dy, px + dx) =
@@ -182,6 +192,7 @@ class CarSequence {
   size_t shown_begin_ = 0;
   size_t shown_ = 0;
   int64_t index_ = 0;
+  int flow_reach_ = 0;
 };
 
 }  // namespace twist::objects::testing

@@ -249,23 +249,32 @@ TEST(StaticReprojectionCostTest, FailsBehindCamera) {
 }
 
 // ------------------------------------------------------------ (b) tracking
+// A random tracking observation of a point in front of the camera under the
+// random twist *xi.
+template <int N>
+TwistTrackingObservation<N> RandomTwistObservation(Random* random, int trial, Vector6d* xi) {
+  TwistTrackingObservation<N> obs;
+  obs.camera = KittiLikeCamera();
+  obs.sqrt_information = random->Uniform(0.3, 1.0);
+  obs.camera_from_world = random->Pose(2.0);
+  obs.world_from_object_previous = random->Pose(3.0);
+  obs.world_projector = random->WorldProjector(trial % 7);
+  *xi = random->Twist(0.6);
+  const Eigen::Vector3d p_c = random->PointInCamera();
+  obs.point_in_object = (obs.camera_from_world * SE3d::Exp(obs.world_projector * *xi) *
+                         obs.world_from_object_previous)
+                            .Inverse() *
+                        p_c;
+  obs.observed = ProjectToObservation<N>(obs.camera, p_c) + random->Noise<N>(3.0);
+  return obs;
+}
+
 template <int N>
 void CheckTwistTracking(unsigned seed) {
   Random random(seed);
   for (int trial = 0; trial < kTrials; ++trial) {
-    TwistTrackingObservation<N> obs;
-    obs.camera = KittiLikeCamera();
-    obs.sqrt_information = random.Uniform(0.3, 1.0);
-    obs.camera_from_world = random.Pose(2.0);
-    obs.world_from_object_previous = random.Pose(3.0);
-    obs.world_projector = random.WorldProjector(trial % 7);
-    const Vector6d xi = random.Twist(0.6);
-    const Eigen::Vector3d p_c = random.PointInCamera();
-    obs.point_in_object = (obs.camera_from_world * SE3d::Exp(obs.world_projector * xi) *
-                           obs.world_from_object_previous)
-                              .Inverse() *
-                          p_c;
-    obs.observed = ProjectToObservation<N>(obs.camera, p_c) + random.Noise<N>(3.0);
+    Vector6d xi;
+    const TwistTrackingObservation<N> obs = RandomTwistObservation<N>(&random, trial, &xi);
     const std::vector<double> twist(xi.data(), xi.data() + 6);
     TwistTrackingCost<N> analytic(obs);
     std::unique_ptr<ceres::CostFunction> autodiff(TwistTrackingFunctor<N>::Create(obs));
@@ -273,8 +282,32 @@ void CheckTwistTracking(unsigned seed) {
   }
 }
 
+// With the point's own error as a second parameter (and a whitening W that
+// is not the identity).
+template <int N>
+void CheckTwistDepthTracking(unsigned seed) {
+  Random random(seed);
+  for (int trial = 0; trial < kTrials; ++trial) {
+    Vector6d xi;
+    TwistTrackingObservation<N> obs = RandomTwistObservation<N>(&random, trial, &xi);
+    const ObservationVector<N> g = random.Noise<N>(1.0);
+    obs.whitening = Eigen::Matrix<double, N, N>::Identity() -
+                    random.Uniform(0.1, 0.9) * g.normalized() * g.normalized().transpose();
+    obs.point_sigma_in_object = 0.3 * obs.point_in_object.normalized();
+    const std::vector<double> twist(xi.data(), xi.data() + 6);
+    const std::vector<double> delta = {random.Uniform(-1.0, 1.0)};
+    TwistDepthTrackingCost<N> analytic(obs);
+    std::unique_ptr<ceres::CostFunction> autodiff(TwistDepthTrackingFunctor<N>::Create(obs));
+    CheckCostPair(analytic, *autodiff, {twist, delta}, {nullptr, nullptr});
+  }
+}
+
 TEST(TwistTrackingCostTest, MonoAnalyticMatchesAutodiffAndFiniteDifferences) {
   CheckTwistTracking<2>(21);
+}
+TEST(TwistTrackingCostTest, WithThePointsErrorAnalyticMatchesAutodiffAndFiniteDifferences) {
+  CheckTwistDepthTracking<2>(23);
+  CheckTwistDepthTracking<3>(24);
 }
 TEST(TwistTrackingCostTest, StereoAnalyticMatchesAutodiffAndFiniteDifferences) {
   CheckTwistTracking<3>(22);

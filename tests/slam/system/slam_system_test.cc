@@ -368,7 +368,7 @@ TEST(SlamSystem, LoadRejectsTruncatedObjectState) {
 }
 
 // A format-3 file (written before the objects were saved) still loads. Without
-// the object stage a format-7 file is a format-4 file (formats 5 to 7 only
+// the object stage a format-8 file is a format-4 file (formats 5 to 8 only
 // add to the object state), and a format-3 file plus one flag byte before the
 // trailer, so one is made from the other.
 TEST(SlamSystem, LoadsFormatVersion3) {
@@ -384,7 +384,7 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   uint32_t version = 0;
   std::memcpy(&version, &data[8], sizeof(version));
-  ASSERT_EQ(version, 7u);
+  ASSERT_EQ(version, 8u);
   ASSERT_EQ(data[data.size() - 9], '\0');  // "no object stage"
   {
     std::string v4 = data;

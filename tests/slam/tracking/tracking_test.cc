@@ -145,8 +145,8 @@ TEST_F(TrackerTest, AWeakMotionModelPoseLosesToTheReferenceKeyFrame) {
   const geometry::SE3d turn(geometry::SO3d::Exp(Eigen::Vector3d(0, 4.0 * M_PI / 180.0, 0)),
                             Eigen::Vector3d::Zero());
   const geometry::SE3d truth = TruePose(8) * turn;  // world_from_camera
-  auto features = std::make_shared<map::FrameFeatures>(
-      *Observe(world_, cam_, pyramid_, truth.Inverse(), 808));
+  auto features =
+      std::make_shared<map::FrameFeatures>(*Observe(world_, cam_, pyramid_, truth.Inverse(), 808));
   const geometry::SE3d predicted = TruePose(8).Inverse();  // camera_from_world
   int decoys = 0;
   std::vector<uint8_t> rows(features->descriptors.data,
@@ -186,6 +186,30 @@ TEST_F(TrackerTest, AWeakMotionModelPoseLosesToTheReferenceKeyFrame) {
   EXPECT_GT(tracker_.stats().num_inliers, 100);
   EXPECT_LT(testing::RotationErrorDeg(f.camera_from_world.Inverse(), truth), 0.1);
   EXPECT_LT(testing::TranslationError(f.camera_from_world.Inverse(), truth), 0.05);
+}
+
+// A frame that neither the motion model nor the reference keyframe tracks
+// while tracking is fine (a jump ahead, as at the start of a sharp turn, with
+// the reference keyframe culled) is relocalized in the same frame rather than
+// reported lost.
+TEST_F(TrackerTest, AFrameTheTrackingPathsMissIsRelocalizedAtOnce) {
+  const int kJump = 20;  // 12 frames ahead of the motion model's prediction
+  std::vector<geometry::SE3d> poses;
+  Run(8, &poses);
+  ASSERT_EQ(tracker_.state(), TrackingState::kOk);
+  map_.EraseKeyFrame(tracker_.reference_kf_id());
+  map::Frame f;
+  f.id = 8;
+  f.timestamp_ns = 800'000'000LL;
+  f.features = Observe(world_, cam_, pyramid_, TruePose(kJump).Inverse(), 999);
+  f.ResetMatches();
+  const TrackingState s = tracker_.Track(&f, &map_);
+  EXPECT_EQ(s, TrackingState::kRelocalized);
+  EXPECT_EQ(tracker_.stats().path, TrackingPath::kRelocalization);
+  // Farther from the map than RelocalizesAfterAForcedLoss's frame: fewer
+  // close points.
+  EXPECT_LT(testing::TranslationError(f.camera_from_world.Inverse(), TruePose(kJump)), 0.1);
+  EXPECT_LT(testing::RotationErrorDeg(f.camera_from_world.Inverse(), TruePose(kJump)), 0.2);
 }
 
 TEST_F(TrackerTest, StaysLostWhenNothingMatches) {
