@@ -597,6 +597,27 @@ void BuildDriving(Scenario* sc, Builder* b) {
   Walkers(b, 8, 0.0, std::min(z1 - 30.0, 10.0 * t_end + 60.0));
 }
 
+// The blocks and road markings of a four-way crossing of the main street
+// (along z) with a cross street (along x) centred on z = zi.
+void IntersectionStreets(Builder* b, double zi, double x_far, double z_far) {
+  const double south = zi - kCrossHalf, north = zi + kCrossHalf;
+  b->Block(kRoadRight, x_far, -40.0, south, kWest | kNorth);
+  b->Block(kRoadRight, x_far, north, z_far, kWest | kSouth);
+  b->Block(-x_far, kRoadLeft, -40.0, south, kEast | kNorth);
+  b->Block(-x_far, kRoadLeft, north, z_far, kEast | kSouth);
+  // Main street markings stop at the crossing; zebra crossings and a stop line.
+  b->AddMarking({-1.75, -40.0}, {0, 1}, south - 4.5 + 40.0, 0.13, 12.0, 0.25);
+  b->AddMarking({-1.75, north + 4.5}, {0, 1}, z_far - north, 0.13, 12.0, 0.25);
+  b->AddMarking({1.75, -40.0}, {0, 1}, south - 4.0 + 40.0, 0.15);
+  b->AddMarking({-5.25, -40.0}, {0, 1}, south - 4.0 + 40.0, 0.15);
+  b->AddMarking({kRoadLeft, south - 2.0}, {1, 0}, kRoadRight - kRoadLeft, 3.0, 1.0, 0.5);
+  b->AddMarking({-1.75, south - 4.0}, {1, 0}, 3.5, 0.4);
+  // Cross street markings (along x), zebra on the east arm.
+  b->AddMarking({kRoadRight + 4.5, zi}, {1, 0}, x_far, 0.13, 12.0, 0.25);
+  b->AddMarking({-x_far, zi}, {1, 0}, x_far + kRoadLeft - 4.5, 0.13, 12.0, 0.25);
+  b->AddMarking({kRoadRight + 2.0, south}, {0, 1}, 2.0 * kCrossHalf, 3.0, 1.0, 0.5);
+}
+
 void BuildIntersection(Scenario* sc, Builder* b) {
   const double zi = 45.0;
   const double turn_radius = 8.0;
@@ -614,22 +635,8 @@ void BuildIntersection(Scenario* sc, Builder* b) {
   const double x_far = std::max(120.0, end.x + 150.0);
   const double z_far = std::max(zi + 150.0, end.z + 150.0);
   b->Road(-x_far - 50.0, x_far + 300.0, -90.0, z_far + 300.0);
+  IntersectionStreets(b, zi, x_far, z_far);
   const double south = zi - kCrossHalf, north = zi + kCrossHalf;
-  b->Block(kRoadRight, x_far, -40.0, south, kWest | kNorth);
-  b->Block(kRoadRight, x_far, north, z_far, kWest | kSouth);
-  b->Block(-x_far, kRoadLeft, -40.0, south, kEast | kNorth);
-  b->Block(-x_far, kRoadLeft, north, z_far, kEast | kSouth);
-  // Main street markings stop at the crossing; zebra crossings and a stop line.
-  b->AddMarking({-1.75, -40.0}, {0, 1}, south - 4.5 + 40.0, 0.13, 12.0, 0.25);
-  b->AddMarking({-1.75, north + 4.5}, {0, 1}, z_far - north, 0.13, 12.0, 0.25);
-  b->AddMarking({1.75, -40.0}, {0, 1}, south - 4.0 + 40.0, 0.15);
-  b->AddMarking({-5.25, -40.0}, {0, 1}, south - 4.0 + 40.0, 0.15);
-  b->AddMarking({kRoadLeft, south - 2.0}, {1, 0}, kRoadRight - kRoadLeft, 3.0, 1.0, 0.5);
-  b->AddMarking({-1.75, south - 4.0}, {1, 0}, 3.5, 0.4);
-  // Cross street markings (along x), zebra on the east arm.
-  b->AddMarking({kRoadRight + 4.5, zi}, {1, 0}, x_far, 0.13, 12.0, 0.25);
-  b->AddMarking({-x_far, zi}, {1, 0}, x_far + kRoadLeft - 4.5, 0.13, 12.0, 0.25);
-  b->AddMarking({kRoadRight + 2.0, south}, {0, 1}, 2.0 * kCrossHalf, 3.0, 1.0, 0.5);
   // Crossing cars: one will lead the camera after its turn, one the other way.
   b->AddCar(PlanarMotion(PlanarState{-36.0, zi - 1.75, M_PI / 2.0, 9.0}, {}, G));
   b->AddCar(PlanarMotion(PlanarState{44.0, zi + 1.75, -M_PI / 2.0, 8.0}, {}, G));
@@ -650,6 +657,37 @@ void BuildIntersection(Scenario* sc, Builder* b) {
       PlanarMotion(PlanarState{9.0, north + 1.5, M_PI / 2.0, 1.2}, {}, G - kCurbHeight));
   b->AddPedestrian(
       PlanarMotion(PlanarState{14.0, south - 1.6, M_PI / 2.0, 1.3}, {}, G - kCurbHeight));
+}
+
+void BuildTurningTraffic(Scenario* sc, Builder* b) {
+  // The camera waits 18 m before a crossing while cars turn in front of it
+  // (0.6-0.8 rad/s): the generator's only turning objects.
+  const double zi = 24.0;
+  sc->camera_motion = CameraMotion(0.0, {});
+  const double x_far = 150.0, z_far = zi + 150.0;
+  b->Road(-x_far - 50.0, x_far + 300.0, -90.0, z_far + 300.0);
+  IntersectionStreets(b, zi, x_far, z_far);
+  const double south = zi - kCrossHalf, north = zi + kCrossHalf;
+  // From the west, right turn (R 9 m) into the oncoming lane, towards the camera.
+  const double r1 = 9.0, v1 = 7.0, x1 = kOncomingLane - r1;
+  b->AddCar(PlanarMotion(PlanarState{-45.0, zi - 1.75, M_PI / 2.0, v1},
+                         {{(x1 + 45.0) / v1, 0.0, 0.0}, {M_PI / 2.0 * r1 / v1, 0.0, 1.0 / r1}},
+                         G));
+  // From the east, left turn (R 12 m) into the same lane, later.
+  const double r2 = 12.0, v2 = 7.0, x2 = kOncomingLane + r2;
+  b->AddCar(PlanarMotion(PlanarState{60.0, zi + 1.75, -M_PI / 2.0, v2},
+                         {{(60.0 - x2) / v2, 0.0, 0.0}, {M_PI / 2.0 * r2 / v2, 0.0, -1.0 / r2}},
+                         G));
+  // Ahead in the camera's lane, right turn (R 7 m) into the cross street.
+  const double r3 = 7.0, v3 = 5.0, z3 = zi - 1.75 - r3;
+  b->AddCar(PlanarMotion(PlanarState{0.0, 8.0, 0.0, v3},
+                         {{(z3 - 8.0) / v3, 0.0, 0.0}, {M_PI / 2.0 * r3 / v3, 0.0, 1.0 / r3}},
+                         G));
+  const std::vector<Interval> keep_clear = {{south - 14.0, north + 10.0}};
+  b->ParkedRow(kParkRight, -30.0, south - 10.0, 0.0, 0.2, keep_clear);
+  b->ParkedRow(kParkLeft, -30.0, south - 10.0, M_PI, 0.25, keep_clear);
+  b->ParkedRow(kParkLeft, north + 8.0, z_far - 10.0, M_PI, 0.25, {});
+  Walkers(b, 4, 0.0, south - 5.0);
 }
 
 void BuildStationaryThenAccelerating(Scenario* sc, Builder* b) {
@@ -743,6 +781,9 @@ const Entry kEntries[] = {
     {"intersection",
      "camera slows down and turns right at a crossing; crossing cars",
      &BuildIntersection},
+    {"turning_traffic",
+     "camera waiting before a crossing; cars turn in front of it (0.6-0.8 rad/s)",
+     &BuildTurningTraffic},
     {"stationary_then_accelerating",
      "camera still for 3 s then accelerating; cars pass close (many dynamic pixels)",
      &BuildStationaryThenAccelerating},

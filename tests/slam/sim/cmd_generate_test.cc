@@ -38,6 +38,7 @@ TEST(GenerateCommand, HelpListsTheScenarios) {
   for (const char* name : {"static_street",
                            "driving",
                            "intersection",
+                           "turning_traffic",
                            "stationary_then_accelerating",
                            "follow_braking",
                            "door"}) {

@@ -54,7 +54,7 @@ bool Overlap(const Corners2& a, const Corners2& b) {
 }
 
 TEST(Scenarios, ListAndErrors) {
-  EXPECT_EQ(ListScenarios().size(), 6u);
+  EXPECT_EQ(ListScenarios().size(), 7u);
   EXPECT_EQ(MakeScenario("nope", 1, 10).status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_EQ(MakeScenario("driving", 1, 0).status().code(), absl::StatusCode::kInvalidArgument);
   absl::StatusOr<Scenario> sc = MakeScenario("driving", 1, 10);
