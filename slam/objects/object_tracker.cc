@@ -596,7 +596,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   auto add_obs = [&](size_t point, const Eigen::Vector2d& uv, double u_right) {
     TwistObservation t;
     t.point_in_object = o->points[point].point_in_object;
-    t.point_sigma_in_object = o->points[point].sigma_in_object;
+    if (options_.model_point_noise) t.point_sigma_in_object = o->points[point].sigma_in_object;
     t.uv = uv;
     t.u_right = u_right;
     obs.push_back(t);
@@ -861,7 +861,7 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
     if (!InsideDetection(det, f.keypoints.uv[kp], 2.0)) continue;
     TwistObservation t;
     t.point_in_object = pts[k];
-    t.point_sigma_in_object = o->points[k].sigma_in_object;
+    if (options_.model_point_noise) t.point_sigma_in_object = o->points[k].sigma_in_object;
     t.uv = f.keypoints.uv[kp];
     t.u_right = ObjectStereo(ctx, det, kp);
     obs.push_back(t);

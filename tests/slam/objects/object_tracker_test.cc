@@ -52,11 +52,7 @@ TEST(JointFrames, PlanarFromParentRoadAndRevoluteFromAxis) {
 
 TEST(ObjectTracker, TracksAPlanarCarExactlyWithoutNoise) {
   CarSequence seq(0.0, 1);
-  ObjectTrackerOptions options;
-  // The zero-turn prior pulls this turning car's yaw by 0.5 % (0.006° per
-  // frame): exact only without it.
-  options.turn_rate_sigma_radps = 0.0;
-  ObjectTracker tracker(seq.camera(), options);
+  ObjectTracker tracker(seq.camera(), ObjectTrackerOptions{});
   const SE3d gt0 = seq.world_from_object();
   SE3d est0;
   int64_t object_id = -1;
@@ -133,9 +129,9 @@ TEST(ObjectTracker, NoisyTrackingAndUnconstrainedSwitch) {
 // A car crossing 20 m ahead, seen from the side, its points' stereo depth
 // noisy (0.5 px on each image: ±0.7 m). Taken as exact, that structure is best
 // explained by the motion that keeps the view it was triangulated from: the
-// car turned with its bearing, 4.1° over 11 frames. Estimated with the twist
-// (TwistEstimatorOptions::estimate_point_errors), with the zero-turn prior,
-// 0.5°.
+// car turned with its bearing, 8.9° over 11 frames. Estimated with the twist
+// (ObjectTrackerOptions::model_point_noise; both with a zero-turn prior of
+// 0.1 rad/s), 0.5°.
 TEST(ObjectTracker, ACrossingCarDoesNotTurnWithItsBearing) {
   double mean_error[2] = {0.0, 0.0};
   const int kSeeds = 8;
@@ -148,7 +144,8 @@ TEST(ObjectTracker, ACrossingCarDoesNotTurnWithItsBearing) {
       step << -0.9, 0, 0, 0, 0, 0;  // 9 m/s across the road
       seq.set_step(step);
       ObjectTrackerOptions options;
-      options.estimator.estimate_point_errors = estimate_point_errors == 1;
+      options.model_point_noise = estimate_point_errors == 1;
+      options.turn_rate_sigma_radps = 0.1;
       options.disparity_sigma_px = 0.7;  // the sequence's: 0.5 px on each image
       ObjectTracker tracker(seq.camera(), options);
       const SE3d gt0 = seq.world_from_object();
@@ -274,9 +271,6 @@ TEST(ObjectTracker, AFullObjectReplacesThePointsItNoLongerSees) {
     CarSequence seq(0.3, 31, 3.0, 200);
     ObjectTrackerOptions options;
     options.max_points_per_object = 40;
-    // The car turns at 0.2 rad/s, twice the zero-turn prior's σ: with the
-    // prior it lags the turn (max error 0.47 m over the 20 frames).
-    options.turn_rate_sigma_radps = 0.0;
     options.evict_unseen_frames = evict;
     options.max_continuation_gap_frames = 0;  // (a continuation would hide the loss)
     ObjectTracker tracker(seq.camera(), options);
@@ -314,9 +308,7 @@ TEST(ObjectTracker, AFullObjectReplacesThePointsItNoLongerSees) {
     EXPECT_LE(max_points, 40u);
     if (evict > 0) {
       EXPECT_EQ(tracked, frames);
-      // 0.10 m with the points taken as exact, 0.15 m with their depth noise
-      // estimated with each step (less confident, as it should be).
-      EXPECT_LT(max_error, 0.2);
+      EXPECT_LT(max_error, 0.15);
     } else {
       EXPECT_LT(tracked, frames);  // the failure the eviction removes
     }
@@ -746,7 +738,6 @@ TEST(ObjectTracker, MatchingMeasurementsDoNotInheritFlowDrift) {
     ObjectTrackerOptions options;
     options.measure_by_matching = by_matching;
     options.stationary_after_frames = 0;
-    options.turn_rate_sigma_radps = 0.0;  // exact data, a turning car: exact without the prior
     ObjectTracker tracker(seq.camera(), options);
     const SE3d gt0 = seq.world_from_object();
     SE3d est0;
@@ -852,7 +843,6 @@ TEST(ObjectTracker, TrajectoriesKeepOldPosesAndRemovedObjects) {
 TEST(ObjectTracker, LostThenReidentifiedUnderANewClusterId) {
   CarSequence seq(0.0, 3);
   ObjectTrackerOptions options;
-  options.turn_rate_sigma_radps = 0.0;  // exact data, a turning car: exact without the prior
   ObjectTracker tracker(seq.camera(), options);
   const SE3d gt0 = seq.world_from_object();
   const auto [id, est0] = TrackCar(&tracker, &seq, 11, 5);
@@ -1113,7 +1103,7 @@ TEST(ObjectTracker, RejectsMalformedInput) {
   EXPECT_TRUE(options.Validate().ok());
   options.turn_rate_sigma_radps = std::nan("");
   EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
-  options.turn_rate_sigma_radps = 0.0;  // no prior
+  options.turn_rate_sigma_radps = 0.1;
   EXPECT_TRUE(options.Validate().ok());
 }
 
