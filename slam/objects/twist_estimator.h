@@ -10,14 +10,17 @@
 // after every round, observations with ‖r_j/σ‖² above the χ² gate are
 // rejected and the problem is solved again (outliers may come back).
 //
-// A point is not exact: one triangulated by stereo at 26 m is uncertain by
-// ~0.9 m along its ray. Its residual's covariance is then σ² I + g gᵀ, with g
-// the image of its uncertainty (∂π/∂p_c times the point's σ vector in the
-// camera); each residual is whitened by (I + g gᵀ/σ²)^(−1/2), computed at the
-// start of every round. Without it the twist that explains the noisy
-// structure best is the one that keeps the viewing geometry of its creation:
-// a car crossing the view seemed to turn with its bearing (docs/objects.md
-// §27).
+// A point need not be exact: one triangulated by stereo at 26 m is uncertain
+// by ~0.9 m along its ray (TwistObservation::point_sigma_in_object). Taken as
+// exact, a noisy structure is best explained by the twist that keeps the view
+// it was triangulated from: a car crossing the view seemed to turn with its
+// bearing (docs/objects.md §27). With estimate_point_errors each such point
+// gets an offset δ_j along its σ vector, prior N(0, 1), solved with the twist
+// (errors in variables); the MAD scale, the gates, the significance and the
+// covariance use the residuals whitened by (I + g gᵀ/σ²)^(−1/2), g the image
+// of the σ vector (the same profile over δ_j to first order). Points with a
+// zero σ vector are exact, as before. An optional linear prior (TwistPrior)
+// enters the solve and the covariance.
 //
 // Π is the joint's world projector (joints::Joint::WorldProjector()); the
 // solver moves ξ only inside range(Π) (a linear-subspace manifold), so the
