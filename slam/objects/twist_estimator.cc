@@ -9,6 +9,7 @@
 #include <cmath>
 #include <memory>
 #include <optional>
+#include <type_traits>
 
 #include "slam/objects/subspace_manifold.h"
 #include "slam/optimization/cost_functions/twist_tracking_cost.h"
@@ -48,6 +49,19 @@ optimization::TwistTrackingObservation<N> CostConstants(const geometry::StereoCa
 }
 
 template <int N>
+ceres::CostFunction* MakeSizedCost(const optimization::TwistTrackingObservation<N>& o,
+                                   bool point_error,
+                                   bool autodiff) {
+  if (point_error) {
+    if (autodiff) return optimization::TwistDepthTrackingFunctor<N>::Create(o);
+    return new optimization::TwistDepthTrackingCost<N>(o);
+  }
+  if (autodiff) return optimization::TwistTrackingFunctor<N>::Create(o);
+  return new optimization::TwistTrackingCost<N>(o);
+}
+
+// The cost of one observation, mono (2 rows) or stereo (3), with the point's
+// own error δ as a second parameter block when `point_error`.
 ceres::CostFunction* MakeCost(const geometry::StereoCamera& camera,
                               const SE3d& camera_from_world,
                               const SE3d& world_from_object_previous,
@@ -55,36 +69,22 @@ ceres::CostFunction* MakeCost(const geometry::StereoCamera& camera,
                               const TwistObservation& obs,
                               const Eigen::Matrix3d& whitening,
                               double sqrt_information,
+                              bool point_error,
                               bool autodiff) {
-  const auto o = CostConstants<N>(camera,
-                                  camera_from_world,
-                                  world_from_object_previous,
-                                  projector,
-                                  obs,
-                                  whitening,
-                                  sqrt_information);
-  if (autodiff) return optimization::TwistTrackingFunctor<N>::Create(o);
-  return new optimization::TwistTrackingCost<N>(o);
-}
-
-// The cost with the point's own error δ as a second parameter.
-template <int N>
-ceres::CostFunction* MakeDepthCost(const geometry::StereoCamera& camera,
-                                   const SE3d& camera_from_world,
-                                   const SE3d& world_from_object_previous,
-                                   const Matrix6d& projector,
-                                   const TwistObservation& obs,
-                                   double sqrt_information,
-                                   bool autodiff) {
-  const auto o = CostConstants<N>(camera,
-                                  camera_from_world,
-                                  world_from_object_previous,
-                                  projector,
-                                  obs,
-                                  Eigen::Matrix3d::Identity(),
-                                  sqrt_information);
-  if (autodiff) return optimization::TwistDepthTrackingFunctor<N>::Create(o);
-  return new optimization::TwistDepthTrackingCost<N>(o);
+  auto make = [&](auto rows) {
+    constexpr int N = decltype(rows)::value;
+    return MakeSizedCost<N>(CostConstants<N>(camera,
+                                             camera_from_world,
+                                             world_from_object_previous,
+                                             projector,
+                                             obs,
+                                             whitening,
+                                             sqrt_information),
+                            point_error,
+                            autodiff);
+  };
+  return obs.stereo() ? make(std::integral_constant<int, 3>{})
+                      : make(std::integral_constant<int, 2>{});
 }
 
 // r = δ: the N(0, 1) prior of a point's own error.
@@ -252,9 +252,15 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
   std::vector<bool> active(n);
   for (size_t j = 0; j < n; ++j) active[j] = res[j].has_value();
   double sigma = mad(res, &active);
-  update_whitening(xi, sigma);
-  res = residuals_at(xi);
-  sigma = mad(res, &active);
+  const bool any_point_noise =
+      std::any_of(observations.begin(), observations.end(), [](const TwistObservation& o) {
+        return !o.point_sigma_in_object.isZero();
+      });
+  if (any_point_noise) {  // whitened at the first scale, then the scale again
+    update_whitening(xi, sigma);
+    res = residuals_at(xi);
+    sigma = mad(res, &active);
+  }
 
   for (int round = 0; round < options.max_rounds; ++round) {
     const int num_active = static_cast<int>(std::count(active.begin(), active.end(), true));
@@ -269,50 +275,31 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
       for (size_t j = 0; j < n; ++j) {
         if (!active[j]) continue;
         const TwistObservation& ob = observations[j];
-        const bool stereo = ob.stereo();
-        if (options.estimate_point_errors && !ob.point_sigma_in_object.isZero()) {
-          // The point's own error along its uncertain direction, with its
-          // prior N(0, 1): the twist and the structure's errors together
-          // (errors in variables), not the twist under a structure taken as
-          // exact.
-          ceres::CostFunction* cost = stereo ? MakeDepthCost<3>(camera,
-                                                                camera_from_world,
-                                                                world_from_object_previous,
-                                                                world_projector,
-                                                                ob,
-                                                                1.0 / sigma,
-                                                                options.use_autodiff)
-                                             : MakeDepthCost<2>(camera,
-                                                                camera_from_world,
-                                                                world_from_object_previous,
-                                                                world_projector,
-                                                                ob,
-                                                                1.0 / sigma,
-                                                                options.use_autodiff);
+        // With its own error along its uncertain direction (prior N(0, 1)):
+        // the twist and the structure's errors together (errors in
+        // variables), not the twist under a structure taken as exact.
+        // Otherwise an exact point (identity whitening), or the whitening
+        // alone.
+        const bool point_error =
+            options.estimate_point_errors && !ob.point_sigma_in_object.isZero();
+        ceres::CostFunction* cost =
+            MakeCost(camera,
+                     camera_from_world,
+                     world_from_object_previous,
+                     world_projector,
+                     ob,
+                     point_error ? Eigen::Matrix3d::Identity() : whitening[j],
+                     1.0 / sigma,
+                     point_error,
+                     options.use_autodiff);
+        if (point_error) {
           problem.AddResidualBlock(
               cost, new ceres::HuberLoss(options.huber_delta), x, &point_errors[j]);
           problem.AddResidualBlock(new UnitPrior, nullptr, &point_errors[j]);
           ordering->AddElementToGroup(&point_errors[j], 0);
-          continue;
+        } else {
+          problem.AddResidualBlock(cost, new ceres::HuberLoss(options.huber_delta), x);
         }
-        // An exact point (identity), or the whitening alone.
-        ceres::CostFunction* cost = stereo ? MakeCost<3>(camera,
-                                                         camera_from_world,
-                                                         world_from_object_previous,
-                                                         world_projector,
-                                                         ob,
-                                                         whitening[j],
-                                                         1.0 / sigma,
-                                                         options.use_autodiff)
-                                           : MakeCost<2>(camera,
-                                                         camera_from_world,
-                                                         world_from_object_previous,
-                                                         world_projector,
-                                                         ob,
-                                                         whitening[j],
-                                                         1.0 / sigma,
-                                                         options.use_autodiff);
-        problem.AddResidualBlock(cost, new ceres::HuberLoss(options.huber_delta), x);
       }
       for (Eigen::Index row = 0; row < prior.sqrt_information.rows(); ++row) {
         problem.AddResidualBlock(
@@ -341,7 +328,7 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
     }
     // New scale from the current inliers (whitened at the new twist), then
     // re-gate every observation.
-    update_whitening(xi, sigma);
+    if (any_point_noise) update_whitening(xi, sigma);
     res = residuals_at(xi);
     sigma = mad(res, &active);
     std::vector<bool> next(n, false);
@@ -380,23 +367,15 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
     for (size_t j = 0; j < n; ++j) {
       if (!active[j]) continue;
       const bool stereo = observations[j].stereo();
-      const std::unique_ptr<ceres::CostFunction> cost(stereo
-                                                          ? MakeCost<3>(camera,
-                                                                        camera_from_world,
-                                                                        world_from_object_previous,
-                                                                        world_projector,
-                                                                        observations[j],
-                                                                        whitening[j],
-                                                                        1.0,
-                                                                        false)
-                                                          : MakeCost<2>(camera,
-                                                                        camera_from_world,
-                                                                        world_from_object_previous,
-                                                                        world_projector,
-                                                                        observations[j],
-                                                                        whitening[j],
-                                                                        1.0,
-                                                                        false));
+      const std::unique_ptr<ceres::CostFunction> cost(MakeCost(camera,
+                                                               camera_from_world,
+                                                               world_from_object_previous,
+                                                               world_projector,
+                                                               observations[j],
+                                                               whitening[j],
+                                                               1.0,
+                                                               false,
+                                                               false));
       const int rows = stereo ? 3 : 2;
       double r[3];
       Eigen::Matrix<double, 3, 6, Eigen::RowMajor> jac6;

@@ -47,6 +47,25 @@ struct TwistTrackingObservation {
 };
 
 // ----------------------------------------------------------------- autodiff
+// The residual of both autodiff twins for the point p_o (object frame).
+template <int N, typename T>
+bool TwistTrackingResidual(const TwistTrackingObservation<N>& obs,
+                           const T* twist,
+                           const Eigen::Matrix<T, 3, 1>& p_o,
+                           T* residuals) {
+  using SE3T = geometry::SE3<T>;
+  const Eigen::Map<const Eigen::Matrix<T, 6, 1>> xi(twist);
+  const Eigen::Matrix<T, 6, 1> eta = obs.world_projector.template cast<T>() * xi;
+  const SE3T camera_from_object = obs.camera_from_world.template cast<T>() * SE3T::Exp(eta) *
+                                  obs.world_from_object_previous.template cast<T>();
+  const Eigen::Matrix<T, 3, 1> p_c = camera_from_object * p_o;
+  if (!(p_c.z() > T(kMinProjectionDepth))) return false;
+  Eigen::Map<Eigen::Matrix<T, N, 1>> r(residuals);
+  r = T(obs.sqrt_information) * obs.whitening.template cast<T>() *
+      (obs.observed.template cast<T>() - ProjectToObservation<N>(obs.camera, p_c));
+  return true;
+}
+
 template <int N>
 class TwistTrackingFunctor {
  public:
@@ -54,17 +73,8 @@ class TwistTrackingFunctor {
 
   template <typename T>
   bool operator()(const T* twist, T* residuals) const {
-    using SE3T = geometry::SE3<T>;
-    const Eigen::Map<const Eigen::Matrix<T, 6, 1>> xi(twist);
-    const Eigen::Matrix<T, 6, 1> eta = obs_.world_projector.template cast<T>() * xi;
-    const SE3T camera_from_object = obs_.camera_from_world.template cast<T>() * SE3T::Exp(eta) *
-                                    obs_.world_from_object_previous.template cast<T>();
-    const Eigen::Matrix<T, 3, 1> p_c = camera_from_object * obs_.point_in_object.template cast<T>();
-    if (!(p_c.z() > T(kMinProjectionDepth))) return false;
-    Eigen::Map<Eigen::Matrix<T, N, 1>> r(residuals);
-    r = T(obs_.sqrt_information) * obs_.whitening.template cast<T>() *
-        (obs_.observed.template cast<T>() - ProjectToObservation<N>(obs_.camera, p_c));
-    return true;
+    return TwistTrackingResidual<N, T>(
+        obs_, twist, obs_.point_in_object.template cast<T>(), residuals);
   }
 
   static ceres::CostFunction* Create(const TwistTrackingObservation<N>& obs) {
@@ -123,19 +133,9 @@ class TwistDepthTrackingFunctor {
 
   template <typename T>
   bool operator()(const T* twist, const T* delta, T* residuals) const {
-    using SE3T = geometry::SE3<T>;
-    const Eigen::Map<const Eigen::Matrix<T, 6, 1>> xi(twist);
-    const Eigen::Matrix<T, 6, 1> eta = obs_.world_projector.template cast<T>() * xi;
-    const SE3T camera_from_object = obs_.camera_from_world.template cast<T>() * SE3T::Exp(eta) *
-                                    obs_.world_from_object_previous.template cast<T>();
     const Eigen::Matrix<T, 3, 1> p_o = obs_.point_in_object.template cast<T>() +
                                        delta[0] * obs_.point_sigma_in_object.template cast<T>();
-    const Eigen::Matrix<T, 3, 1> p_c = camera_from_object * p_o;
-    if (!(p_c.z() > T(kMinProjectionDepth))) return false;
-    Eigen::Map<Eigen::Matrix<T, N, 1>> r(residuals);
-    r = T(obs_.sqrt_information) * obs_.whitening.template cast<T>() *
-        (obs_.observed.template cast<T>() - ProjectToObservation<N>(obs_.camera, p_c));
-    return true;
+    return TwistTrackingResidual<N, T>(obs_, twist, p_o, residuals);
   }
 
   static ceres::CostFunction* Create(const TwistTrackingObservation<N>& obs) {
