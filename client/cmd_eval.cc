@@ -4,6 +4,7 @@
 // the ground truth in the run-output format (a self-check: evaluating it gives zeros).
 // Camera and object metrics of a run (DESIGN.md §6) as a table on stdout and
 // optionally as JSON.
+#include <filesystem>
 #include <iostream>
 
 #include "client/cli_util.h"
@@ -35,8 +36,10 @@ int EvalCommand(int argc, char** argv) {
                 "2000")
       .AddFlag("no-mask-pixels", "skip reading the masks (no visible-coverage figure)")
       .AddFlag("refined",
-               "score the objects' trajectories as the dynamic BA left them "
-               "(objects_refined.txt) instead of the per-frame poses (objects.txt)")
+               "score the trajectories as the final map has them: the objects' as the "
+               "dynamic BA left them (objects_refined.txt) and the camera corrected by the "
+               "final keyframes (camera_refined.txt, when the run wrote it) instead of the "
+               "per-frame poses (objects.txt, camera.txt)")
       .AddValue("write-gt-run",
                 "DIR",
                 "instead of evaluating, write the sequence's ground truth as run outputs into "
@@ -56,7 +59,14 @@ int EvalCommand(int argc, char** argv) {
   options.objects.moving_speed_mps = *moving;
   options.objects.min_mask_pixels = *min_px;
   options.count_mask_pixels = !args->Flag("no-mask-pixels");
-  if (args->Flag("refined")) options.objects_file = "objects_refined.txt";
+  if (args->Flag("refined")) {
+    options.objects_file = "objects_refined.txt";
+    // Runs written before camera_refined.txt existed: the online poses.
+    if (args->Has("est") &&
+        std::filesystem::exists(std::filesystem::path(args->Get("est")) / "camera_refined.txt")) {
+      options.camera_file = "camera_refined.txt";
+    }
+  }
 
   absl::StatusOr<io::DatasetFormat> format = io::ParseDatasetFormat(args->Get("format"));
   if (!format.ok()) return Fail("eval", std::string(format.status().message()), 2);

@@ -231,6 +231,8 @@ bool ReadRunConfig(const std::string& path, RunConfig* config, std::string* erro
           s.object_ba_iterations = static_cast<int>(v);
         else if (k == "parked_objects_static")
           s.parked_objects_static = v != 0;
+        else if (k == "dense_keyframes")
+          s.dense_keyframes = v != 0;
         else if (k == "seed")
           s.seed = static_cast<uint64_t>(v);
         else {
@@ -499,6 +501,11 @@ int RunCommand(int argc, char** argv) {
     refined.push_back({o.id, o.class_id, o.instance_id, o.trajectory});
   }
   writer.SetRefinedObjects(std::move(refined));
+  std::vector<std::pair<int64_t, geometry::SE3d>> keyframes;
+  for (const MapSnapshot::KeyFrame& kf : map.keyframes) {
+    keyframes.push_back({kf.timestamp_ns, kf.world_from_camera});
+  }
+  writer.SetRefinedKeyFrames(std::move(keyframes));
   const std::filesystem::path out_dir = args->Get("out");
   if (!WriteFileAtomic((out_dir / "updates.jsonl").string(), jsonl, &out_error) ||
       !WriteFileAtomic((out_dir / "map.ply").string(), client::MapToPly(map), &out_error)) {

@@ -338,6 +338,7 @@ absl::Status ApplyOptions(const pb::SlamOptions& in, SlamOptions* options) {
   }
   if (in.has_object_ba_iterations()) options->object_ba_iterations = in.object_ba_iterations();
   if (in.has_parked_objects_static()) options->parked_objects_static = in.parked_objects_static();
+  if (in.has_dense_keyframes()) options->dense_keyframes = in.dense_keyframes();
   return absl::OkStatus();
 }
 
@@ -360,6 +361,7 @@ void ToProto(const SlamOptions& options, pb::SlamOptions* out) {
   out->set_object_ba_window_frames(options.object_ba_window_frames);
   out->set_object_ba_iterations(options.object_ba_iterations);
   out->set_parked_objects_static(options.parked_objects_static);
+  out->set_dense_keyframes(options.dense_keyframes);
 }
 
 void ToProto(const geometry::StereoCamera& camera, pb::StereoCalibration* out) {

@@ -191,6 +191,8 @@ absl::Status ReadSlamOptions(const cv::FileNode& node, SlamOptions* o) {
       o->object_ba_iterations = static_cast<int>(v);
     else if (key == "parked_objects_static")
       o->parked_objects_static = v != 0;
+    else if (key == "dense_keyframes")
+      o->dense_keyframes = v != 0;
     else if (key == "seed")
       o->seed = static_cast<uint64_t>(v);
     else

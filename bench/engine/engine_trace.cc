@@ -12,6 +12,7 @@
 #include "slam/features/orb_extractor.h"
 #include "slam/features/stereo_matcher.h"
 #include "slam/io/metrics.h"
+#include "slam/io/run_output.h"
 #include "slam/io/sequence.h"
 #include "slam/system/slam_system.h"
 using namespace twist;
@@ -310,6 +311,18 @@ int main(int argc, char** argv) {
              mr->rpe_t,
              mr->rpe_r_deg,
              mr->ate_rmse);
+    }
+    // camera_refined.txt: the keyframes' corrections interpolated between
+    // them (io::RefineCameraWithKeyFrames).
+    {
+      std::vector<std::pair<int64_t, geometry::SE3d>> frames, kfs;
+      for (size_t i = 0; i < est.size(); ++i) frames.push_back({ts[i], est[i]});
+      for (const auto& kf : snap.keyframes) kfs.push_back({kf.timestamp_ns, kf.world_from_camera});
+      auto mi = io::EvaluateCamera(gt, io::RefineCameraWithKeyFrames(frames, kfs));
+      printf("camera_refined trajectory: RPE_t %.4f RPE_R %.4f ATE %.4f\n",
+             mi->rpe_t,
+             mi->rpe_r_deg,
+             mi->ate_rmse);
     }
     printf("consecutive keyframes: RPE_t online %.4f after mapping %.4f; RPE_R %.4f / %.4f\n",
            mo->rpe_t,

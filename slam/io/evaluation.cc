@@ -42,7 +42,7 @@ absl::StatusOr<RunEvaluation> EvaluateRunDirectory(const SequenceReader& sequenc
   eval.options = options;
 
   if (sequence.has_gt_poses()) {
-    const std::string path = JoinPath(est_dir, "camera.txt");
+    const std::string path = JoinPath(est_dir, options.camera_file);
     absl::StatusOr<std::vector<geometry::SE3d>> est = ReadKittiPoses(path);
     if (!est.ok()) return est.status();
     if (static_cast<int64_t>(est->size()) != sequence.size()) {
@@ -158,6 +158,8 @@ std::string FormatRunEvaluation(const RunEvaluation& eval) {
   std::string out = "sequence " + eval.sequence + " (" + eval.dataset_format + ", " +
                     std::to_string(eval.num_frames) + " frames), estimate " + eval.est_dir + "\n";
   if (eval.camera) {
+    if (eval.options.camera_file != "camera.txt")
+      out += "camera from " + eval.options.camera_file + "\n";
     out += FormatCameraTable(*eval.camera);
   } else {
     out += "camera: not evaluated: " + eval.camera_note + "\n";
@@ -195,6 +197,7 @@ std::string RunEvaluationJson(const RunEvaluation& eval) {
   w.Key("moving_speed_mps").Number(eval.options.objects.moving_speed_mps);
   w.Key("min_mask_pixels").Int(eval.options.objects.min_mask_pixels);
   w.Key("objects_file").String(eval.options.objects_file);
+  w.Key("camera_file").String(eval.options.camera_file);
   w.Key("max_match_distance_m").Number(eval.options.objects.max_match_distance_m);
   w.Key("mask_pixels_counted").Bool(eval.used_mask_pixels);
   w.EndObject();

@@ -26,6 +26,9 @@ struct RunEvalOptions {
   // (the per-frame poses) or objects_refined.txt (the trajectories as the
   // dynamic BA left them).
   std::string objects_file = "objects.txt";
+  // The file that holds the camera poses: camera.txt (online) or
+  // camera_refined.txt (corrected by the final map's keyframes).
+  std::string camera_file = "camera.txt";
 };
 
 struct RunEvaluation {
@@ -50,7 +53,7 @@ std::vector<ObjectGtRow> ObjectsGtFromLabels(const std::vector<KittiLabel>& labe
                                              const std::vector<geometry::SE3d>& world_from_left,
                                              const Eigen::Vector3d& left_from_ref_translation);
 
-// Reads OUTDIR/camera.txt (when the sequence has ground-truth poses) and
+// Reads OUTDIR/camera.txt (options.camera_file; when the sequence has ground-truth poses) and
 // OUTDIR/objects.txt (when it has object ground truth) and computes the
 // metrics. Fails, naming the file, when an output needed is missing or
 // malformed, or has a different number of frames.

@@ -48,6 +48,54 @@ std::vector<StampedPose> RunOutputWriter::CameraTum() const {
 
 std::vector<ObjectTrackRow> RunOutputWriter::ObjectRows() const { return objects_; }
 
+std::vector<geometry::SE3d> RefineCameraWithKeyFrames(
+    const std::vector<std::pair<int64_t, geometry::SE3d>>& frames,
+    const std::vector<std::pair<int64_t, geometry::SE3d>>& keyframes) {
+  std::map<int64_t, size_t> frame_at;
+  for (size_t i = 0; i < frames.size(); ++i) frame_at.emplace(frames[i].first, i);
+  // (frame index, correction), in frame order.
+  std::vector<std::pair<size_t, geometry::SE3d>> corrections;
+  for (const auto& [t, world_from_camera] : keyframes) {
+    const auto it = frame_at.find(t);
+    if (it == frame_at.end()) continue;
+    corrections.push_back({it->second, world_from_camera * frames[it->second].second.Inverse()});
+  }
+  std::sort(corrections.begin(), corrections.end(), [](const auto& a, const auto& b) {
+    return a.first < b.first;
+  });
+  std::vector<geometry::SE3d> out;
+  out.reserve(frames.size());
+  size_t k = 0;  // the last correction at or before frame i (or the first)
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (corrections.empty()) {
+      out.push_back(frames[i].second);
+      continue;
+    }
+    while (k + 1 < corrections.size() && corrections[k + 1].first <= i) ++k;
+    geometry::SE3d c = corrections[k].second;
+    if (corrections[k].first < i && k + 1 < corrections.size()) {
+      const auto& [a, ca] = corrections[k];
+      const auto& [b, cb] = corrections[k + 1];
+      const double s = static_cast<double>(i - a) / static_cast<double>(b - a);
+      c = ca * geometry::SE3d::Exp(s * (ca.Inverse() * cb).Log());
+    }
+    out.push_back(c * frames[i].second);
+  }
+  return out;
+}
+
+void RunOutputWriter::SetRefinedKeyFrames(
+    std::vector<std::pair<int64_t, geometry::SE3d>> keyframes) {
+  refined_keyframes_ = std::move(keyframes);
+}
+
+std::vector<geometry::SE3d> RunOutputWriter::RefinedCameraPoses() const {
+  std::vector<std::pair<int64_t, geometry::SE3d>> frames;
+  frames.reserve(frames_.size());
+  for (const FrameRecord& f : frames_) frames.push_back({f.timestamp_ns, f.world_from_camera});
+  return RefineCameraWithKeyFrames(frames, refined_keyframes_.value_or(decltype(frames){}));
+}
+
 void RunOutputWriter::SetRefinedObjects(std::vector<TimedObjectTrajectory> trajectories) {
   refined_ = std::move(trajectories);
 }
@@ -162,6 +210,10 @@ absl::Status RunOutputWriter::Write(const std::string& dir, const RunInfo& info)
   if (!s.ok()) return s;
   if (refined_) {
     s = WriteObjectTracks(JoinPath(dir, "objects_refined.txt"), RefinedObjectRows());
+    if (!s.ok()) return s;
+  }
+  if (refined_keyframes_) {
+    s = WriteKittiPoses(JoinPath(dir, "camera_refined.txt"), RefinedCameraPoses());
     if (!s.ok()) return s;
   }
   return WriteFileAtomic(JoinPath(dir, "summary.json"), SummaryJson(info));

@@ -94,6 +94,7 @@ bool NeedNewKeyFrame(const KeyFrameDecisionInput& in) {
       in.num_keyframes > in.max_frames) {
     return false;
   }
+  if (in.dense) return in.mapper_idle && in.num_inliers > 15;
   const double ref_ratio = in.num_keyframes < 2 ? 0.4 : 0.75;
   const bool need_close = in.num_tracked_close < 100 && in.num_untracked_close > 70;
   const bool c1a = in.frame_id >= in.last_keyframe_frame_id + in.max_frames;
@@ -490,8 +491,15 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
     prior_sigma = map->disparity_offset_updates() == 0 ? options_.disparity_offset_prior_sigma
                                                        : options_.disparity_offset_step_sigma;
     std::vector<int64_t> local{kf_id};
-    for (const auto& [nb, w] : kf->connections) {
-      if (map->keyframe(nb) != nullptr) local.push_back(nb);
+    if (options_.max_local_ba_keyframes > 0) {
+      for (int64_t nb : kf->ordered_connections) {
+        if (static_cast<int>(local.size()) > options_.max_local_ba_keyframes) break;
+        if (map->keyframe(nb) != nullptr) local.push_back(nb);
+      }
+    } else {
+      for (const auto& [nb, w] : kf->connections) {
+        if (map->keyframe(nb) != nullptr) local.push_back(nb);
+      }
     }
     const int64_t origin = map->keyframes().empty() ? -1 : map->keyframes().begin()->first;
     for (int64_t id : local) {

@@ -34,6 +34,13 @@ struct MapperOptions {
   int num_threads = 1;               // Ceres threads
   double keyframe_redundancy = 0.9;  // cull keyframes with this share of redundant points
   int max_frames_between_keyframes = 10;
+  // The local BA optimises the new keyframe and at most this many of its
+  // covisible keyframes, the most covisible first (0: all of them, as
+  // ORB-SLAM2). With a keyframe at every frame (KeyFrameDecisionInput::dense)
+  // a point is seen by ~5 keyframes instead of ~3, every keyframe is
+  // covisible with 20-40 others and the solve grows 4x; the 8 strongest give
+  // the same accuracy on KITTI 06 (docs/math.md section 11).
+  int max_local_ba_keyframes = 0;
   // Self-calibration of the stereo disparity offset (a horizontal
   // principal-point difference left by rectification) in the local BA, with
   // a zero-mean Gaussian prior of this standard deviation (px) at the first
@@ -69,6 +76,10 @@ struct KeyFrameDecisionInput {
   bool mapper_idle = true;
   int mapper_queue = 0;
   int max_frames = 10;  // fps of the sequence (one keyframe per second at least)
+  // Dense keyframes (SlamOptions::dense_keyframes): every tracked frame the
+  // mapper can take becomes a keyframe, so that each frame's pose is refined
+  // by the local BA with its own stereo points rather than kept as tracked.
+  bool dense = false;
 };
 bool NeedNewKeyFrame(const KeyFrameDecisionInput& in);
 

@@ -46,7 +46,11 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // 8: + each object point's stereo noise along its ray
 // (ObjectPoint::sigma_in_object, estimated with each twist). Older files load
 // with exact points.
-constexpr uint32_t kFormatVersion = 8;
+// 9: + SlamOptions::dense_keyframes. Older files load with it off (the
+// keyframe policy they were made with).
+constexpr uint32_t kFormatVersion = 9;
+// Covisible keyframes in the local BA with dense keyframes (SlamOptions).
+constexpr int kDenseLocalBaKeyFrames = 8;
 
 tracking::TrackerOptions TrackerOptionsFrom(const SlamOptions& o) {
   tracking::TrackerOptions t;
@@ -59,6 +63,7 @@ mapping::MapperOptions MapperOptionsFrom(const SlamOptions& o) {
   m.close_depth_baselines = o.max_depth_baselines;
   m.local_ba_iterations = o.local_ba_iterations;
   m.num_threads = o.num_threads;
+  m.max_local_ba_keyframes = o.dense_keyframes ? kDenseLocalBaKeyFrames : 0;
   return m;
 }
 
@@ -174,6 +179,7 @@ void WriteConfig(const SessionConfig& c, system_io::BinaryWriter* w) {
   w->Pod<int32_t>(o.object_ba_window_frames);
   w->Pod<int32_t>(o.object_ba_iterations);
   w->Pod<uint8_t>(o.parked_objects_static);
+  w->Pod<uint8_t>(o.dense_keyframes);
 }
 
 absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r, uint32_t version) {
@@ -210,6 +216,7 @@ absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r, uint32_t ve
     o.object_ba_window_frames = 0;
     o.parked_objects_static = false;
   }
+  o.dense_keyframes = version >= 9 && r->Pod<uint8_t>() != 0;
   if (!r->ok()) return absl::DataLossError("state file truncated in the configuration");
   absl::StatusOr<joints::ClassTable> table = joints::ClassTable::FromText(classes);
   if (!table.ok()) {
@@ -559,6 +566,7 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
       in.mapper_idle = thread_ == nullptr || thread_->idle();
       in.mapper_queue = thread_ == nullptr ? 0 : thread_->queue_size();
       in.max_frames = max_frames_;
+      in.dense = config_.options.dense_keyframes;
       if (mapping::NeedNewKeyFrame(in)) {
         new_kf = mapper_.CreateKeyFrame(frame, &map_, /*initial=*/false);
         tracker_.OnKeyFrameCreated(frame, *new_kf);

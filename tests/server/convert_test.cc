@@ -256,8 +256,10 @@ TEST(Convert, OptionsOverrideOnlyWhatIsSet) {
   objects.set_object_ba_window_frames(0);
   objects.set_object_ba_iterations(4);
   objects.set_parked_objects_static(false);  // the default is true
+  objects.set_dense_keyframes(false);        // the default is true
   SlamOptions o2;
   ASSERT_TRUE(ApplyOptions(objects, &o2).ok());
+  EXPECT_FALSE(o2.dense_keyframes);
   EXPECT_EQ(o2.object_ba_window_frames, 0);
   EXPECT_EQ(o2.object_ba_iterations, 4);
   EXPECT_FALSE(o2.parked_objects_static);

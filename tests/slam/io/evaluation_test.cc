@@ -204,6 +204,79 @@ TEST(Evaluation, RefinedTrajectoriesAreScoredOnRequest) {
   EXPECT_FALSE(std::filesystem::exists(dir / "plain/objects_refined.txt"));
 }
 
+// RefineCameraWithKeyFrames: with a correction that moves along one
+// one-parameter subgroup, C(i) = Exp(i ξ), the interpolation between two
+// keyframes is exact; outside the keyframes the nearest correction holds.
+TEST(RefinedCamera, KeyFrameCorrectionsAreInterpolatedBetweenKeyFrames) {
+  Eigen::Matrix<double, 6, 1> xi;
+  xi << 0.02, -0.01, 0.03, 0.002, -0.001, 0.003;
+  auto correction = [&](int i) { return SE3d::Exp(static_cast<double>(i) * xi); };
+  std::vector<std::pair<int64_t, SE3d>> frames, keyframes;
+  for (int i = 0; i < kN; ++i) {
+    frames.push_back({i * 100, correction(i).Inverse() * CameraPose(i)});
+  }
+  for (int i : {9, 2, 5}) keyframes.push_back({i * 100, CameraPose(i)});  // any order
+  keyframes.push_back({555, SE3d()});  // a keyframe of no frame is ignored
+  const std::vector<SE3d> refined = RefineCameraWithKeyFrames(frames, keyframes);
+  ASSERT_EQ(refined.size(), frames.size());
+  for (int i = 0; i < kN; ++i) {
+    const SE3d expected = i < 2   ? correction(2) * frames[i].second
+                          : i > 9 ? correction(9) * frames[i].second
+                                  : CameraPose(i);
+    EXPECT_LT((expected.Inverse() * refined[i]).Log().norm(), 1e-9) << "frame " << i;
+  }
+  // Without keyframes the online poses are kept.
+  const std::vector<SE3d> same = RefineCameraWithKeyFrames(frames, {});
+  for (int i = 0; i < kN; ++i) {
+    EXPECT_LT((frames[i].second.Inverse() * same[i]).Log().norm(), 1e-12);
+  }
+}
+
+// camera_refined.txt (RunOutputWriter::SetRefinedKeyFrames) is scored with
+// RunEvalOptions::camera_file: a drifting run whose every frame is a
+// keyframe at its true pose evaluates to zeros.
+TEST(Evaluation, RefinedCameraIsScoredOnRequest) {
+  ScratchDir dir;
+  MakeDataset(dir / "data");
+  RunOutputWriter out;
+  std::vector<std::pair<int64_t, SE3d>> keyframes;
+  SE3d est = CameraPose(0);
+  for (int i = 0; i < kN; ++i) {
+    if (i > 0) {
+      est = est * (CameraPose(i - 1).Inverse() * CameraPose(i)) *
+            SE3d(SO3d(), Eigen::Vector3d(0, 0, 0.05));
+    }
+    FrameResult r;
+    r.index = i;
+    r.timestamp_ns = i * 100'000'000LL;
+    r.state = TrackingState::kOk;
+    r.world_from_camera = est;
+    out.Add(r);
+    if (i % 3 == 0 || i == kN - 1) keyframes.push_back({r.timestamp_ns, CameraPose(i)});
+  }
+  out.SetRefinedKeyFrames(keyframes);
+  ASSERT_TRUE(out.Write(dir / "run", RunInfo()).ok());
+  auto seq = OpenSequence(dir / "data", "kitti-tracking", "0000");
+  ASSERT_TRUE(seq.ok()) << seq.status();
+  auto online = EvaluateRunDirectory(**seq, dir / "run", SmallMaskOptions());
+  ASSERT_TRUE(online.ok()) << online.status();
+  EXPECT_NEAR(online->camera->rpe_t, 0.05, 1e-6);
+  RunEvalOptions options = SmallMaskOptions();
+  options.camera_file = "camera_refined.txt";
+  auto refined = EvaluateRunDirectory(**seq, dir / "run", options);
+  ASSERT_TRUE(refined.ok()) << refined.status();
+  // The drift is a constant forward step: its correction grows along one
+  // subgroup only approximately, so the frames between keyframes keep a
+  // small error; the keyframes themselves are exact.
+  EXPECT_LT(refined->camera->rpe_t, 0.2 * online->camera->rpe_t);
+  EXPECT_LT(refined->camera->ate_rmse, 0.2 * online->camera->ate_rmse);
+  EXPECT_THAT(FormatRunEvaluation(*refined), HasSubstr("camera from camera_refined.txt"));
+  EXPECT_THAT(RunEvaluationJson(*refined), HasSubstr("\"camera_file\": \"camera_refined.txt\""));
+  // Without SetRefinedKeyFrames there is no such file.
+  WriteRun(dir / "plain", 0.0, kN);
+  EXPECT_FALSE(std::filesystem::exists(dir / "plain/camera_refined.txt"));
+}
+
 TEST(Evaluation, Failures) {
   ScratchDir dir;
   MakeDataset(dir / "data");

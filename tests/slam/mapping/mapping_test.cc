@@ -165,6 +165,82 @@ TEST(KeyFramePolicy, FollowsTheTrackingQuality) {
   EXPECT_FALSE(NeedNewKeyFrame(in));
 }
 
+TEST(KeyFramePolicy, DenseKeyFramesTakeEveryFrameTheMapperCanTake) {
+  KeyFrameDecisionInput in;
+  in.dense = true;
+  in.frame_id = 5;
+  in.last_keyframe_frame_id = 4;
+  in.num_keyframes = 5;
+  in.reference_tracked_points = 400;
+  in.num_inliers = 390;  // tracking well: the ratio policy would not insert
+  in.num_tracked_close = 150;
+  in.num_untracked_close = 50;
+  EXPECT_TRUE(NeedNewKeyFrame(in));
+  in.dense = false;
+  EXPECT_FALSE(NeedNewKeyFrame(in));
+  in.dense = true;
+  in.mapper_idle = false;  // background mapping still busy: not this frame
+  in.mapper_queue = 0;
+  EXPECT_FALSE(NeedNewKeyFrame(in));
+  in.mapper_idle = true;
+  in.num_inliers = 10;  // too weak to make a keyframe
+  EXPECT_FALSE(NeedNewKeyFrame(in));
+  in.num_inliers = 390;
+  in.num_keyframes = 20;  // right after a relocalisation in a large map
+  in.last_relocalization_frame_id = 3;
+  EXPECT_FALSE(NeedNewKeyFrame(in));
+}
+
+TEST_F(MapperTest, TheLocalBundleAdjustmentKeepsTheMostCovisibleKeyFrames) {
+  std::map<int, int64_t> w2p;
+  std::vector<int64_t> kfs;
+  for (int k = 0; k < 8; ++k) kfs.push_back(AddKeyFrame(k, &w2p)->id);
+  // The first keyframe holds the gauge: it never moves.
+  const int64_t origin = kfs.front();
+  std::set<int64_t> strongest;
+  int connected = 0;
+  {
+    std::lock_guard<std::mutex> lock(map_.mutex());
+    for (int64_t id : kfs) map_.UpdateConnections(map_.keyframe(id));
+    const map::KeyFrame* last = map_.keyframe(kfs.back());
+    for (int64_t nb : last->ordered_connections) connected += nb != origin;
+    for (int i = 0; i < 3; ++i) strongest.insert(last->ordered_connections[i]);
+  }
+  ASSERT_GE(connected, 5);
+  MappingTimings t;
+  // Uncapped: the new keyframe and every covisible one.
+  EXPECT_EQ(mapper_.LocalBundleAdjustment(kfs.back(), &map_, nullptr, &t), connected + 1);
+  MapperOptions capped;
+  capped.max_local_ba_keyframes = 3;
+  LocalMapper mapper(cam_, pyramid_, capped);
+  // Snapshot the poses: only the new keyframe and its 3 strongest neighbours
+  // may move.
+  std::map<int64_t, geometry::SE3d> before;
+  {
+    std::lock_guard<std::mutex> lock(map_.mutex());
+    for (int64_t id : kfs) {
+      map::KeyFrame* kf = map_.keyframe(id);
+      kf->camera_from_world =
+          geometry::SE3d::Exp(
+              (Eigen::Matrix<double, 6, 1>() << 0.02, 0, 0, 0, 0.002, 0).finished()) *
+          kf->camera_from_world;
+      before[id] = kf->camera_from_world;
+    }
+  }
+  EXPECT_EQ(mapper.LocalBundleAdjustment(kfs.back(), &map_, nullptr, &t),
+            4 - static_cast<int>(strongest.count(origin)));
+  std::lock_guard<std::mutex> lock(map_.mutex());
+  for (int64_t id : kfs) {
+    const bool may_move = id != origin && (id == kfs.back() || strongest.count(id) > 0);
+    const double moved = (map_.keyframe(id)->camera_from_world.Inverse() * before[id]).Log().norm();
+    if (may_move) {
+      EXPECT_GT(moved, 1e-4) << "keyframe " << id;
+    } else {
+      EXPECT_EQ(moved, 0.0) << "keyframe " << id;
+    }
+  }
+}
+
 TEST_F(MapperTest, BackgroundThreadProcessesTheQueue) {
   std::map<int, int64_t> w2p;
   AddKeyFrame(0, &w2p);

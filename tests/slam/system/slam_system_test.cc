@@ -173,6 +173,7 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   config.options.object_ba_window_frames = 7;
   config.options.object_ba_iterations = 3;
   config.options.parked_objects_static = false;  // not the default
+  config.options.dense_keyframes = false;        // not the default
   auto sys = SlamSystem::Create(config);
   ASSERT_TRUE(sys.ok());
   ASSERT_TRUE((*sys)->Process(SmallClip().frames[0]).ok());
@@ -183,6 +184,7 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   EXPECT_EQ((*loaded)->config().options.object_ba_window_frames, 7);
   EXPECT_EQ((*loaded)->config().options.object_ba_iterations, 3);
   EXPECT_FALSE((*loaded)->config().options.parked_objects_static);
+  EXPECT_FALSE((*loaded)->config().options.dense_keyframes);
   std::remove(path.c_str());
 }
 
@@ -367,14 +369,37 @@ TEST(SlamSystem, LoadRejectsTruncatedObjectState) {
   std::remove(path.c_str());
 }
 
+// The offset of SlamOptions::dense_keyframes in a state file (format 9): the
+// first byte where two fresh sessions that differ only in it differ.
+size_t DenseKeyFramesOffset(SessionConfig config) {
+  std::string bytes[2];
+  for (int dense = 0; dense < 2; ++dense) {
+    config.options.dense_keyframes = dense != 0;
+    auto sys = SlamSystem::Create(config);
+    EXPECT_TRUE(sys.ok());
+    const std::string path = TempPath("state_dense_offset");
+    EXPECT_TRUE((*sys)->Save(path).ok());
+    std::ifstream in(path, std::ios::binary);
+    bytes[dense].assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    std::remove(path.c_str());
+  }
+  size_t k = 0;
+  while (k < bytes[0].size() && bytes[0][k] == bytes[1][k]) ++k;
+  return k;
+}
+
 // A format-3 file (written before the objects were saved) still loads. Without
-// the object stage a format-8 file is a format-4 file (formats 5 to 8 only
-// add to the object state), and a format-3 file plus one flag byte before the
-// trailer, so one is made from the other.
+// the object stage a format-9 file less its dense_keyframes byte is a format-4
+// file (formats 5 to 8 only add to the object state), and a format-3 file
+// plus one flag byte before the trailer, so one is made from the other.
 TEST(SlamSystem, LoadsFormatVersion3) {
   const Clip& clip = SmallClip();
   SessionConfig config = clip.config;
   config.options.track_objects = false;
+  // Older files load with dense keyframes off: the session they resume
+  // must have had it off to continue identically.
+  config.options.dense_keyframes = false;
+  const size_t dense_at = DenseKeyFramesOffset(config);
   auto sys = SlamSystem::Create(config);
   ASSERT_TRUE(sys.ok());
   for (int k = 0; k < 6; ++k) ASSERT_TRUE((*sys)->Process(clip.frames[k]).ok());
@@ -384,8 +409,11 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   uint32_t version = 0;
   std::memcpy(&version, &data[8], sizeof(version));
-  ASSERT_EQ(version, 8u);
+  ASSERT_EQ(version, 9u);
   ASSERT_EQ(data[data.size() - 9], '\0');  // "no object stage"
+  ASSERT_LT(dense_at, data.size());
+  ASSERT_EQ(data[dense_at], '\0');
+  data.erase(dense_at, 1);  // format 8 from here on
   {
     std::string v4 = data;
     version = 4;
