@@ -561,13 +561,54 @@ TwistPrior ObjectTracker::TurnPrior(const joints::Joint& joint, double seconds) 
   return prior;
 }
 
+Vector6d ObjectTracker::FirstStepSeed(const FrameContext& ctx,
+                                      const ObjectDetectionInput& det,
+                                      const TrackedObject& o) const {
+  Vector6d seed = Vector6d::Zero();
+  if (o.last_box.area() <= 0.0 || det.box.area() <= 0.0) return seed;
+  // Where the points seen in the last frame were, and where the camera's own
+  // motion alone takes them (the object held still).
+  const SE3d camera_from_object = ctx.frame.camera_from_world * o.world_from_object;
+  Eigen::Vector2d was = Eigen::Vector2d::Zero(), held = Eigen::Vector2d::Zero();
+  std::vector<double> depths;
+  for (const ObjectPoint& p : o.points) {
+    if (!p.seen_last_frame) continue;
+    const Eigen::Vector3d p_c = camera_from_object * p.point_in_object;
+    Eigen::Vector2d uv;
+    if (!camera_.ProjectChecked(p_c, &uv, nullptr, 0.1)) continue;
+    was += p.last_uv;
+    held += uv;
+    depths.push_back(p_c.z());
+  }
+  if (depths.empty()) return seed;
+  const double n = static_cast<double>(depths.size());
+  was /= n;
+  held /= n;
+  auto centre = [](const cv::Rect2d& r) {
+    return Eigen::Vector2d(r.x + 0.5 * r.width, r.y + 0.5 * r.height);
+  };
+  // The detection's shift beyond the camera's motion, as a translation
+  // across the view at the points' depth.
+  const Eigen::Vector2d shift = (centre(det.box) - centre(o.last_box)) - (held - was);
+  const double z = Median(depths);
+  const Eigen::Vector3d across(shift.x() * z / camera_.fx, shift.y() * z / camera_.fy, 0.0);
+  seed.head<3>() = ctx.world_from_camera.so3() * across;
+  return o.joint.WorldProjector() * seed;
+}
+
 bool ObjectTracker::Track(const FrameContext& ctx,
                           const ObjectDetectionInput& det,
-                          TrackedObject* o) {
+                          TrackedObject* o,
+                          bool seed_from_detection) {
   const ObjectFrameInput& f = ctx.frame;
-  // Constant-velocity prediction, scaled to this frame's duration.
+  // Constant-velocity prediction, scaled to this frame's duration. A new
+  // object has no step yet: no motion, or its detection's image motion.
   Vector6d initial = o->twist_step;
-  if (o->step_seconds > 0.0 && ctx.dt > 0.0) initial *= ctx.dt / o->step_seconds;
+  if (o->step_seconds > 0.0 && ctx.dt > 0.0) {
+    initial *= ctx.dt / o->step_seconds;
+  } else if (seed_from_detection) {
+    initial = FirstStepSeed(ctx, det, *o);
+  }
   const SE3d predicted = SE3d::Exp(o->joint.WorldProjector() * initial) * o->world_from_object;
   const SE3d camera_from_predicted = f.camera_from_world * predicted;
   if (BeyondTrackingRange(camera_from_predicted)) return false;
@@ -1062,7 +1103,12 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
     const bool reacquiring = !(o->frames_lost == 0 && has_prev_);
     if (!reacquiring) {
       UpdateJoint(det.joint, o);
-      ok = Track(ctx, det, o);
+      ok = Track(ctx, det, o, /*seed_from_detection=*/false);
+      // A new object's first step, predicted as no motion, found nothing
+      // to measure: predicted from its detection's image motion instead.
+      if (!ok && o->step_seconds == 0.0 && options_.seed_first_step_from_box) {
+        ok = Track(ctx, det, o, /*seed_from_detection=*/true);
+      }
     } else {
       double score = 0.0;
       ok = Reacquire(ctx, det, o, &score);

@@ -284,6 +284,19 @@ struct ObjectTrackerOptions {
   int continuation_min_history = 3;
   double continuation_margin_m = 0.5;
   double continuation_min_inside = 0.8;
+  // The first step of a new object has no motion to predict from: it is
+  // predicted as no motion, and when that finds nothing to measure (too few
+  // flow tracks and matches for an estimate), it is tried again predicted
+  // from its detection: the shift of the detection box's centre since the
+  // object was created, beyond the shift the camera's own motion gives its
+  // points, as a translation across the view at the points' median depth
+  // (projected onto the joint). A car crossing the view 20-25 m away
+  // (25-30 px per frame) was otherwise found by neither the flow nor the
+  // projection search, and on `intersection` such cars were created and
+  // lost again frame after frame (docs/objects.md §28). Not the first try:
+  // the box of a car cut by the image border or an occluder moves without
+  // it (seeding every first step raised the parked cars' speed error).
+  bool seed_first_step_from_box = true;
   bool refine_by_projection = true;
   // With refine_by_projection: the observations of the final estimate are the
   // keypoint (descriptor) and patch matches of all the object's points, found
@@ -421,7 +434,17 @@ class ObjectTracker {
 
  private:
   struct FrameContext;
-  bool Track(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* object);
+  // A tracked step; a new object's first step (no motion yet) is predicted
+  // as no motion, or with seed_from_detection from its detection
+  // (FirstStepSeed).
+  bool Track(const FrameContext& ctx,
+             const ObjectDetectionInput& det,
+             TrackedObject* object,
+             bool seed_from_detection);
+  // The predicted first step of a new object (seed_first_step_from_box).
+  geometry::Vector6d FirstStepSeed(const FrameContext& ctx,
+                                   const ObjectDetectionInput& det,
+                                   const TrackedObject& object) const;
   // The constant-velocity filter's update of a tracked step (see
   // acceleration_sigma_mps2): fuses `estimate` with the prediction
   // `predicted` in place and returns true, or returns false when the step
