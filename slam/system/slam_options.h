@@ -31,7 +31,7 @@ struct SlamOptions {
   // ORB-SLAM2's policy (a keyframe when tracking keeps < 75 % of the
   // reference keyframe's points or needs close points; ~1 frame in 3 on
   // KITTI). Dense keyframes cut the per-frame translation error by 10-25 %
-  // (KITTI 06, rendered streets) at ~2x the mapping time per frame
+  // (KITTI 06, rendered streets) at ~3x the synchronous time per frame
   // (docs/math.md section 11).
   bool dense_keyframes = true;
   int num_threads = 1;  // Ceres threads per solve
