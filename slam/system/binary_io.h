@@ -79,6 +79,7 @@ class BinaryReader {
   }
   bool ok() const { return ok_; }
   bool at_end() const { return pos_ == data_.size(); }
+  size_t position() const { return pos_; }
   void Fail() { ok_ = false; }
 
  private:

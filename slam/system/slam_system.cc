@@ -48,7 +48,10 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // with exact points.
 // 9: + SlamOptions::dense_keyframes. Older files load with it off (the
 // keyframe policy they were made with).
-constexpr uint32_t kFormatVersion = 9;
+// 10: + a block before the trailer, its byte length last: the tracker's
+// last inlier count (TrackerOptions::research_inlier_ratio). Older files load
+// with none (no second local-map search on the first frame after loading).
+constexpr uint32_t kFormatVersion = 10;
 // Covisible keyframes in the local BA with dense keyframes (SlamOptions).
 constexpr int kDenseLocalBaKeyFrames = 8;
 
@@ -733,6 +736,13 @@ absl::Status SlamSystemImpl::Save(const std::string& path) const {
   }
   w.Pod<uint8_t>(objects_ != nullptr);
   if (objects_ != nullptr) objects_->Write(&w);
+  {
+    // Format 10's block, its length last so that it can be found from the
+    // end of the file.
+    const size_t start = w.buffer().size();
+    w.Pod<int32_t>(ts.last_inliers);
+    w.Pod<uint64_t>(w.buffer().size() - start);
+  }
   w.Bytes(kMagic, sizeof(kMagic));  // trailer: detects truncation
 
   const std::string tmp = path + ".tmp";
@@ -843,6 +853,14 @@ absl::Status SlamSystemImpl::Restore(system_io::BinaryReader* r, uint32_t versio
     }
     if (r->ok() && has_objects) {
       if (absl::Status s = objects_->Read(r, version); !s.ok()) return s;
+    }
+  }
+  if (version >= 10) {
+    const size_t start = r->position();
+    ts.last_inliers = r->Pod<int32_t>();
+    const uint64_t length = r->Pod<uint64_t>();
+    if (!r->ok() || length != r->position() - start - sizeof(uint64_t) || ts.last_inliers < 0) {
+      return absl::DataLossError("state file has a corrupt tracking block");
     }
   }
   char trailer[8];

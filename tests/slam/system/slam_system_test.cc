@@ -369,7 +369,13 @@ TEST(SlamSystem, LoadRejectsTruncatedObjectState) {
   std::remove(path.c_str());
 }
 
-// The offset of SlamOptions::dense_keyframes in a state file (format 9): the
+// Writes `bytes` to `path` (replacing it).
+void WriteBytes(const std::string& path, const std::string& bytes) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+}
+
+// The offset of SlamOptions::dense_keyframes in a state file (format 9+): the
 // first byte where two fresh sessions that differ only in it differ.
 size_t DenseKeyFramesOffset(SessionConfig config) {
   std::string bytes[2];
@@ -389,9 +395,10 @@ size_t DenseKeyFramesOffset(SessionConfig config) {
 }
 
 // A format-3 file (written before the objects were saved) still loads. Without
-// the object stage a format-9 file less its dense_keyframes byte is a format-4
-// file (formats 5 to 8 only add to the object state), and a format-3 file
-// plus one flag byte before the trailer, so one is made from the other.
+// the object stage a format-10 file less its last block (before the trailer)
+// and its dense_keyframes byte is a format-4 file (formats 5 to 8 only add to
+// the object state), and a format-3 file plus one flag byte before the
+// trailer, so one is made from the other.
 TEST(SlamSystem, LoadsFormatVersion3) {
   const Clip& clip = SmallClip();
   SessionConfig config = clip.config;
@@ -409,8 +416,27 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   uint32_t version = 0;
   std::memcpy(&version, &data[8], sizeof(version));
-  ASSERT_EQ(version, 9u);
-  ASSERT_EQ(data[data.size() - 9], '\0');  // "no object stage"
+  ASSERT_EQ(version, 10u);
+  // Format 10's block ends with its length, before the 8-byte trailer.
+  uint64_t block = 0;
+  std::memcpy(&block, &data[data.size() - 16], sizeof(block));
+  ASSERT_LT(block + 16, data.size());
+  data.erase(data.size() - 16 - block, block + 8);  // format 9 from here on
+  ASSERT_EQ(data[data.size() - 9], '\0');           // "no object stage"
+  {
+    std::string v9 = data;
+    version = 9;
+    std::memcpy(&v9[8], &version, sizeof(version));
+    const std::string path9 = TempPath("state_v9");
+    WriteBytes(path9, v9);
+    EXPECT_TRUE(SlamSystem::Load(path9).ok());
+    // Declared as format 10, the same bytes lack the block: rejected.
+    version = 10;
+    std::memcpy(&v9[8], &version, sizeof(version));
+    WriteBytes(path9, v9);
+    EXPECT_EQ(SlamSystem::Load(path9).status().code(), absl::StatusCode::kDataLoss);
+    std::remove(path9.c_str());
+  }
   ASSERT_LT(dense_at, data.size());
   ASSERT_EQ(data[dense_at], '\0');
   data.erase(dense_at, 1);  // format 8 from here on
@@ -419,10 +445,7 @@ TEST(SlamSystem, LoadsFormatVersion3) {
     version = 4;
     std::memcpy(&v4[8], &version, sizeof(version));
     const std::string path4 = TempPath("state_v4_declared");
-    {
-      std::ofstream out(path4, std::ios::binary);
-      out.write(v4.data(), static_cast<std::streamsize>(v4.size()));
-    }
+    WriteBytes(path4, v4);
     EXPECT_TRUE(SlamSystem::Load(path4).ok());
     std::remove(path4.c_str());
   }
@@ -430,10 +453,7 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   version = 3;
   std::memcpy(&v3[8], &version, sizeof(version));
   const std::string path3 = TempPath("state_v3");
-  {
-    std::ofstream out(path3, std::ios::binary);
-    out.write(v3.data(), static_cast<std::streamsize>(v3.size()));
-  }
+  WriteBytes(path3, v3);
   auto loaded = SlamSystem::Load(path3);
   ASSERT_TRUE(loaded.ok()) << loaded.status();
   for (size_t k = 6; k < 10; ++k) {
@@ -445,10 +465,7 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   // The same bytes declared as format 4 lack the flag: rejected.
   version = 4;
   std::memcpy(&v3[8], &version, sizeof(version));
-  {
-    std::ofstream out(path3, std::ios::binary | std::ios::trunc);
-    out.write(v3.data(), static_cast<std::streamsize>(v3.size()));
-  }
+  WriteBytes(path3, v3);
   EXPECT_EQ(SlamSystem::Load(path3).status().code(), absl::StatusCode::kDataLoss);
   std::remove(path.c_str());
   std::remove(path3.c_str());
