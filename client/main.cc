@@ -53,7 +53,9 @@ void PrintUsage(const std::vector<Command>& commands) {
 int main(int argc, char** argv) {
   google::InitGoogleLogging(argv[0]);
   FLAGS_logtostderr = true;
-  FLAGS_minloglevel = 1;  // warnings and errors only; --v for more
+  // Warnings and errors only, unless GLOG_v=N in the environment asks for
+  // the engine's verbose log (VLOG(N), e.g. the tracker's per-frame path).
+  FLAGS_minloglevel = FLAGS_v > 0 ? 0 : 1;
   const std::vector<Command> commands = AvailableCommands();
   if (argc < 2 || std::strcmp(argv[1], "--help") == 0 || std::strcmp(argv[1], "-h") == 0) {
     PrintUsage(commands);

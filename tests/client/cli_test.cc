@@ -133,6 +133,13 @@ TEST(Cli, ServerRunAndMapEndToEnd) {
       << err;
   EXPECT_THAT(err, HasSubstr("frames/s"));
   ASSERT_EQ(Shell(common + "--out " + out_local + " --embedded", &err), 0) << err;
+  // Quiet by default; GLOG_v=1 shows the engine's verbose log (the tracker's
+  // per-frame line).
+  EXPECT_THAT(err, ::testing::Not(HasSubstr(" path ")));
+  const std::string out_verbose = ::testing::TempDir() + "/twist_cli_verbose";
+  fs::remove_all(out_verbose);
+  ASSERT_EQ(Shell("GLOG_v=1 " + common + "--out " + out_verbose + " --embedded", &err), 0) << err;
+  EXPECT_THAT(err, HasSubstr("frame 1 path "));
   for (const char* file : {"camera.txt",
                            "camera_tum.txt",
                            "objects.txt",
