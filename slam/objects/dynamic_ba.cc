@@ -120,8 +120,9 @@ absl::Status DynamicBaOptions::Validate() const {
   if (!(huber_delta > 0.0) || !(const_velocity_huber > 0.0) || !(min_sigma_px > 0.0)) {
     return absl::InvalidArgumentError("dynamic BA Huber thresholds and min_sigma_px must be > 0");
   }
-  if (!(const_velocity_sqrt_weight.array() >= 0.0).all()) {
-    return absl::InvalidArgumentError("dynamic BA constant-velocity weights must be >= 0");
+  if (!(const_velocity_sqrt_weight.array() >= 0.0).all() ||
+      !(const_acceleration_sqrt_weight.array() >= 0.0).all()) {
+    return absl::InvalidArgumentError("dynamic BA motion-prior weights must be >= 0");
   }
   return absl::OkStatus();
 }
@@ -309,38 +310,49 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
       if (obj.fixed_points) ceres_problem.SetParameterBlockConstant(p);
       ++summary.num_dynamic_terms;
     }
-    // Constant velocity over consecutive triplets of optimised frames.
-    if (options.use_const_velocity && options.const_velocity_sqrt_weight.squaredNorm() > 0.0) {
-      for (size_t f = 1; f + 1 < obj.frames.size(); ++f) {
-        if (!obj.frames[f].follows_previous || !obj.frames[f + 1].follows_previous) continue;
-        double* blocks[6];
-        for (int d = -1; d <= 1; ++d) {
-          const size_t g = f + static_cast<size_t>(d + 1) - 1;
-          blocks[2 * (d + 1)] = op.twist[g];
-          blocks[2 * (d + 1) + 1] = op.pose[g];
+    // Motion priors over runs of consecutive frames: constant velocity over
+    // triplets, constant acceleration over quadruplets.
+    auto add_motion_prior = [&](int num_frames, const Vector6d& sqrt_weight) {
+      int added = 0;
+      if (sqrt_weight.squaredNorm() == 0.0) return added;
+      for (size_t f = 0; f + static_cast<size_t>(num_frames) <= obj.frames.size(); ++f) {
+        bool consecutive = true;
+        for (int d = 1; d < num_frames; ++d) consecutive &= obj.frames[f + d].follows_previous;
+        if (!consecutive) continue;
+        std::array<double*, 8> blocks{};
+        for (int d = 0; d < num_frames; ++d) {
+          blocks[2 * d] = op.twist[f + d];
+          blocks[2 * d + 1] = op.pose[f + d];
         }
-        ceres::CostFunction* cost =
-            options.use_autodiff
-                ? optimization::ConstantVelocityFunctor::Create(op.projector,
-                                                                options.const_velocity_sqrt_weight)
-                : static_cast<ceres::CostFunction*>(new optimization::ConstantVelocityCost(
-                      op.projector, options.const_velocity_sqrt_weight));
-        ceres_problem.AddResidualBlock(cost,
-                                       new ceres::HuberLoss(options.const_velocity_huber),
-                                       blocks[0],
-                                       blocks[1],
-                                       blocks[2],
-                                       blocks[3],
-                                       blocks[4],
-                                       blocks[5]);
-        for (int b = 0; b < 3; ++b) {
-          const size_t g = f + static_cast<size_t>(b) - 1;
-          ceres_problem.SetManifold(blocks[2 * b + 1], &se3_manifold);
-          ceres_problem.SetParameterBlockConstant(blocks[2 * b + 1]);
-          if (obj.frames[g].fixed) ceres_problem.SetParameterBlockConstant(blocks[2 * b]);
+        ceres::CostFunction* cost;
+        if (num_frames == 3) {
+          cost = options.use_autodiff
+                     ? optimization::ConstantVelocityFunctor::Create(op.projector, sqrt_weight)
+                     : static_cast<ceres::CostFunction*>(
+                           new optimization::ConstantVelocityCost(op.projector, sqrt_weight));
+        } else {
+          cost = options.use_autodiff
+                     ? optimization::ConstantAccelerationFunctor::Create(op.projector, sqrt_weight)
+                     : static_cast<ceres::CostFunction*>(
+                           new optimization::ConstantAccelerationCost(op.projector, sqrt_weight));
         }
-        ++summary.num_const_velocity_terms;
+        ceres_problem.AddResidualBlock(
+            cost,
+            new ceres::HuberLoss(options.const_velocity_huber),
+            std::vector<double*>(blocks.begin(), blocks.begin() + 2 * num_frames));
+        for (int d = 0; d < num_frames; ++d) {
+          ceres_problem.SetManifold(blocks[2 * d + 1], &se3_manifold);
+          ceres_problem.SetParameterBlockConstant(blocks[2 * d + 1]);
+          if (obj.frames[f + d].fixed) ceres_problem.SetParameterBlockConstant(blocks[2 * d]);
+        }
+        ++added;
       }
+      return added;
+    };
+    if (options.use_const_velocity) {
+      summary.num_const_velocity_terms += add_motion_prior(3, options.const_velocity_sqrt_weight);
+      summary.num_const_acceleration_terms +=
+          add_motion_prior(4, options.const_acceleration_sqrt_weight);
     }
     // Keep the corrections inside range(Π) (well-conditioned normal equations).
     const Eigen::Matrix<double, 6, Eigen::Dynamic> basis = ProjectorRangeBasis(op.projector);

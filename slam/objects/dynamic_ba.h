@@ -4,6 +4,7 @@
 //   e_stat  = ρ(‖x_ij − π(c_i T_w · w X_j)‖_Σ)
 //   e_dyna  = ρ(‖x_ij − π(c_i T_w · Exp(Π ξ̃_i) · w T_o(i) · o X_j)‖_Σ)
 //   e_const = ρ(‖Π ξ_{i+1} − Π ξ_i‖_W),  ξ_{i+1} = Log(P_{i+1} P_i⁻¹),  P_i = Exp(Π ξ̃_i) w T_o(i)
+//   e_acc   = ρ(‖Π (ξ_{i+1} − 2 ξ_i + ξ_{i−1})‖_W')  (constant acceleration; optional)
 //
 // over a window of keyframes: the temporal set (every frame of the last
 // temporal_window_s seconds) where camera AND object poses are optimised, and
@@ -99,7 +100,12 @@ struct DynamicBaOptions {
   // BA fit the observation noise (docs/objects.md section 22).
   geometry::Vector6d const_velocity_sqrt_weight =
       (geometry::Vector6d() << 40, 40, 40, 200, 200, 200).finished();
+  // W^{1/2} of the constant-acceleration term (Π (s_{i+1} − 2 s_i + s_{i−1})
+  // over four consecutive frames, per frame step squared); zero: no term.
+  geometry::Vector6d const_acceleration_sqrt_weight = geometry::Vector6d::Zero();
+  // Huber threshold of both motion priors (in units of their σ).
   double const_velocity_huber = 1.0;
+  // false: neither motion prior.
   bool use_const_velocity = true;
   // σ of each object's observations from the MAD of its initial residuals
   // (paper) instead of BaObservation::sigma_px; clamped below.
@@ -123,6 +129,7 @@ struct DynamicBaSummary {
   int num_static_terms = 0;
   int num_dynamic_terms = 0;
   int num_const_velocity_terms = 0;
+  int num_const_acceleration_terms = 0;
   bool usable = false;
   std::string message;
 };

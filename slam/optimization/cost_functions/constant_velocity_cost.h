@@ -1,31 +1,44 @@
-// Constant-velocity term of the dynamic bundle adjustment (paper e_const).
+// Motion-prior terms of the dynamic bundle adjustment (paper e_const, and its
+// constant-acceleration counterpart).
 //
-// For three consecutive frames k ∈ {i−1, i, i+1} of one object, the corrected
-// object poses are P_k = Exp(Π ξ̃_k) · world_from_object_k. The world-frame
-// twists linking them are
-//   a = Log(P_i · P_{i−1}⁻¹)        (so that P_i = Exp(a) P_{i−1})
-//   b = Log(P_{i+1} · P_i⁻¹)
-// and the residual is
-//   r = W^{1/2} (Π b − Π a),   W = diag(w) (w given as its square roots).
+// For consecutive frames k of one object, the corrected object poses are
+// P_k = Exp(Π ξ̃_k) · world_from_object_k, and the world-frame steps linking
+// them are s_k = Log(P_{k+1} · P_k⁻¹) (so that P_{k+1} = Exp(s_k) P_k). A
+// motion prior is a finite difference of the steps,
+//   r = W^{1/2} Π Σ_k c_k s_k,   W = diag(w) (w given as its square roots):
+//   constant velocity (3 frames):     c = (−1, 1),      r = W^{1/2} Π (s_1 − s_0)
+//   constant acceleration (4 frames): c = (1, −2, 1),   r = W^{1/2} Π (s_2 − 2 s_1 + s_0)
 // Robust loss (Huber) is added by the caller.
 //
-// Parameter blocks, in this order:
-//   ξ̃_{i−1} (6), world_from_object_{i−1} (7, SE3Manifold),
-//   ξ̃_i     (6), world_from_object_i     (7, SE3Manifold),
-//   ξ̃_{i+1} (6), world_from_object_{i+1} (7, SE3Manifold).
+// Parameter blocks, in this order, for each frame k:
+//   ξ̃_k (6), world_from_object_k (7, SE3Manifold).
 // Set the pose blocks constant to optimise the objects through ξ̃ only.
 //
-// Analytic Jacobians. With ε_k a left perturbation of P_k (P_k <- Exp(ε_k) P_k):
+// Analytic Jacobians. With ε_k a left perturbation of P_k (P_k <- Exp(ε_k) P_k),
+//   ∂s_k/∂ε_k = −J_r⁻¹(s_k),   ∂s_k/∂ε_{k+1} = J_l⁻¹(s_k),
+// so ∂r/∂ε_k = W^{1/2} Π (c_{k−1} J_l⁻¹(s_{k−1}) − c_k J_r⁻¹(s_k)) (terms with
+// an index out of range are absent). For three frames this is
 //   ∂r/∂ε_{i−1} =  W^{1/2} Π J_r⁻¹(a)
 //   ∂r/∂ε_i     = −W^{1/2} Π (J_l⁻¹(a) + J_r⁻¹(b))
 //   ∂r/∂ε_{i+1} =  W^{1/2} Π J_l⁻¹(b)
-// and ε_k = J_l(Π ξ̃_k) Π dξ̃_k for the twist blocks, ε_k = Ad(P_k) δ_k for a
-// right perturbation δ_k of world_from_object_k. The paper's formula
-// (Π ∂log/∂T (I₄ ⊗ R) ∂exp Π) is the same derivative written in Kronecker form
-// with ∂exp taken at the identity, i.e. exact only at ξ̃ = 0; see docs/math.md.
+// with a = s_0, b = s_1. Then ε_k = J_l(Π ξ̃_k) Π dξ̃_k for the twist blocks,
+// ε_k = Ad(P_k) δ_k for a right perturbation δ_k of world_from_object_k. The
+// paper's formula (Π ∂log/∂T (I₄ ⊗ R) ∂exp Π) is the same derivative written in
+// Kronecker form with ∂exp taken at the identity, i.e. exact only at ξ̃ = 0;
+// see docs/math.md.
+//
+// Why both (docs/math.md §13): a constant-velocity prior holds a car that
+// brakes or accelerates back, and in a sliding window whose oldest frame is
+// fixed that pull is kept every time the window slides, so a braking car
+// drifts by ~2 cm per frame. A constant-acceleration prior is unbiased while
+// the acceleration is constant.
 #pragma once
 
 #include <Eigen/Core>
+#include <algorithm>
+#include <array>
+#include <tuple>
+#include <utility>
 
 #include "ceres/autodiff_cost_function.h"
 #include "ceres/sized_cost_function.h"
@@ -34,41 +47,132 @@
 
 namespace twist::optimization {
 
+namespace motion_prior_internal {
+
+// r = W^{1/2} Π Σ_k c_k Log(P_{k+1} P_k⁻¹) for kPoses corrected poses given as
+// (twist, pose) parameter pairs.
+template <typename T, int kPoses>
+void Residual(const geometry::Matrix6d& world_projector,
+              const geometry::Vector6d& sqrt_weights,
+              const std::array<double, kPoses - 1>& coefficients,
+              const std::array<const T*, 2 * kPoses>& parameters,
+              T* residuals) {
+  using SE3T = geometry::SE3<T>;
+  using Vector6T = Eigen::Matrix<T, 6, 1>;
+  const Eigen::Matrix<T, 6, 6> pi = world_projector.template cast<T>();
+  SE3T corrected[kPoses];
+  for (int k = 0; k < kPoses; ++k) {
+    corrected[k] = SE3T::Exp(pi * Eigen::Map<const Vector6T>(parameters[2 * k])) *
+                   SE3T::FromParams(parameters[2 * k + 1]);
+  }
+  Vector6T combination = Vector6T::Zero();
+  for (int k = 0; k + 1 < kPoses; ++k) {
+    combination += T(coefficients[k]) * (corrected[k + 1] * corrected[k].Inverse()).Log();
+  }
+  Eigen::Map<Vector6T> r(residuals);
+  r = sqrt_weights.template cast<T>().asDiagonal() * (pi * combination);
+}
+
+// The analytic residual and Jacobians of Residual (see the header comment).
+template <int kPoses>
+bool Evaluate(const geometry::Matrix6d& world_projector,
+              const geometry::Vector6d& sqrt_weights,
+              const std::array<double, kPoses - 1>& coefficients,
+              double const* const* parameters,
+              double* residuals,
+              double** jacobians) {
+  using geometry::Matrix6d;
+  using geometry::SE3d;
+  using geometry::Vector6d;
+  Vector6d eta[kPoses];
+  SE3d corrected[kPoses];
+  for (int k = 0; k < kPoses; ++k) {
+    eta[k] = world_projector * Eigen::Map<const Vector6d>(parameters[2 * k]);
+    corrected[k] = SE3d::Exp(eta[k]) * SE3d::FromParams(parameters[2 * k + 1]);
+  }
+  Vector6d steps[kPoses - 1];
+  Vector6d combination = Vector6d::Zero();
+  for (int k = 0; k + 1 < kPoses; ++k) {
+    steps[k] = (corrected[k + 1] * corrected[k].Inverse()).Log();
+    combination += coefficients[k] * steps[k];
+  }
+  const Matrix6d s_pi = sqrt_weights.asDiagonal() * world_projector;
+  Eigen::Map<Vector6d> r(residuals);
+  r = s_pi * combination;
+  if (jacobians == nullptr) return true;
+
+  for (int k = 0; k < kPoses; ++k) {
+    if (jacobians[2 * k] == nullptr && jacobians[2 * k + 1] == nullptr) continue;
+    // ∂r/∂ε_k for the left perturbation of corrected pose k.
+    Matrix6d d_step = Matrix6d::Zero();
+    if (k > 0) d_step += coefficients[k - 1] * SE3d::LeftJacobianInverse(steps[k - 1]);
+    if (k + 1 < kPoses) d_step -= coefficients[k] * SE3d::RightJacobianInverse(steps[k]);
+    const Matrix6d d_r_d_eps = s_pi * d_step;
+    if (jacobians[2 * k] != nullptr) {
+      Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>> j(jacobians[2 * k]);
+      j = d_r_d_eps * SE3d::LeftJacobian(eta[k]) * world_projector;
+    }
+    if (jacobians[2 * k + 1] != nullptr) {
+      const Eigen::Matrix<double, 6, 6> local = d_r_d_eps * corrected[k].Adjoint();
+      SE3LocalToAmbientJacobian<6>(parameters[2 * k + 1], local, jacobians[2 * k + 1]);
+    }
+  }
+  return true;
+}
+
+// c_k of the finite difference over kPoses poses (3: velocity, 4: acceleration).
+template <int kPoses>
+constexpr std::array<double, kPoses - 1> Coefficients() {
+  static_assert(kPoses == 3 || kPoses == 4, "constant velocity or constant acceleration");
+  if constexpr (kPoses == 3) {
+    return {-1.0, 1.0};
+  } else {
+    return {1.0, -2.0, 1.0};
+  }
+}
+
+// Parameter block sizes (twist 6, pose 7) × kPoses, as a Ceres size list.
+template <typename Functor, size_t... I>
+ceres::CostFunction* NewAutoDiff(Functor* functor, std::index_sequence<I...>) {
+  return new ceres::AutoDiffCostFunction<Functor, 6, (I % 2 == 0 ? 6 : 7)...>(functor);
+}
+template <typename Sequence>
+struct Sized;
+template <size_t... I>
+struct Sized<std::index_sequence<I...>> {
+  using type = ceres::SizedCostFunction<6, (I % 2 == 0 ? 6 : 7)...>;
+};
+
+}  // namespace motion_prior_internal
+
 // ----------------------------------------------------------------- autodiff
-class ConstantVelocityFunctor {
+template <int kPoses>
+class MotionPriorFunctor {
  public:
-  ConstantVelocityFunctor(const geometry::Matrix6d& world_projector,
-                          const geometry::Vector6d& sqrt_weights)
+  MotionPriorFunctor(const geometry::Matrix6d& world_projector,
+                     const geometry::Vector6d& sqrt_weights)
       : world_projector_(world_projector), sqrt_weights_(sqrt_weights) {}
 
-  template <typename T>
-  bool operator()(const T* twist_prev,
-                  const T* pose_prev,
-                  const T* twist_curr,
-                  const T* pose_curr,
-                  const T* twist_next,
-                  const T* pose_next,
-                  T* residuals) const {
-    using SE3T = geometry::SE3<T>;
-    using Vector6T = Eigen::Matrix<T, 6, 1>;
-    const Eigen::Matrix<T, 6, 6> pi = world_projector_.template cast<T>();
-    auto corrected = [&pi](const T* twist, const T* pose) {
-      return SE3T::Exp(pi * Eigen::Map<const Vector6T>(twist)) * SE3T::FromParams(pose);
-    };
-    const SE3T p_prev = corrected(twist_prev, pose_prev);
-    const SE3T p_curr = corrected(twist_curr, pose_curr);
-    const SE3T p_next = corrected(twist_next, pose_next);
-    const Vector6T a = (p_curr * p_prev.Inverse()).Log();
-    const Vector6T b = (p_next * p_curr.Inverse()).Log();
-    Eigen::Map<Vector6T> r(residuals);
-    r = sqrt_weights_.template cast<T>().asDiagonal() * (pi * (b - a));
+  // (ξ̃_0, pose_0, ..., ξ̃_{kPoses−1}, pose_{kPoses−1}, residuals).
+  template <typename T, typename... Rest>
+  bool operator()(const T* twist_0, Rest... rest) const {
+    static_assert(sizeof...(Rest) == 2 * kPoses, "2 blocks per pose, then the residuals");
+    const std::array<const T*, 2 * kPoses + 1> all = {twist_0, rest...};
+    std::array<const T*, 2 * kPoses> parameters;
+    std::copy_n(all.begin(), 2 * kPoses, parameters.begin());
+    T* residuals = std::get<2 * kPoses - 1>(std::make_tuple(rest...));
+    motion_prior_internal::Residual<T, kPoses>(world_projector_,
+                                               sqrt_weights_,
+                                               motion_prior_internal::Coefficients<kPoses>(),
+                                               parameters,
+                                               residuals);
     return true;
   }
 
   static ceres::CostFunction* Create(const geometry::Matrix6d& world_projector,
                                      const geometry::Vector6d& sqrt_weights) {
-    return new ceres::AutoDiffCostFunction<ConstantVelocityFunctor, 6, 6, 7, 6, 7, 6, 7>(
-        new ConstantVelocityFunctor(world_projector, sqrt_weights));
+    return motion_prior_internal::NewAutoDiff(new MotionPriorFunctor(world_projector, sqrt_weights),
+                                              std::make_index_sequence<2 * kPoses>());
   }
 
  private:
@@ -76,54 +180,34 @@ class ConstantVelocityFunctor {
   geometry::Vector6d sqrt_weights_;
 };
 
+using ConstantVelocityFunctor = MotionPriorFunctor<3>;
+using ConstantAccelerationFunctor = MotionPriorFunctor<4>;
+
 // ----------------------------------------------------------------- analytic
-class ConstantVelocityCost final : public ceres::SizedCostFunction<6, 6, 7, 6, 7, 6, 7> {
+template <int kPoses>
+class MotionPriorCost final
+    : public motion_prior_internal::Sized<std::make_index_sequence<2 * kPoses>>::type {
  public:
-  ConstantVelocityCost(const geometry::Matrix6d& world_projector,
-                       const geometry::Vector6d& sqrt_weights)
+  MotionPriorCost(const geometry::Matrix6d& world_projector, const geometry::Vector6d& sqrt_weights)
       : world_projector_(world_projector), sqrt_weights_(sqrt_weights) {}
 
   bool Evaluate(double const* const* parameters,
                 double* residuals,
                 double** jacobians) const override {
-    using geometry::Matrix6d;
-    using geometry::SE3d;
-    using geometry::Vector6d;
-    Vector6d eta[3];
-    SE3d corrected[3];
-    for (int k = 0; k < 3; ++k) {
-      eta[k] = world_projector_ * Eigen::Map<const Vector6d>(parameters[2 * k]);
-      corrected[k] = SE3d::Exp(eta[k]) * SE3d::FromParams(parameters[2 * k + 1]);
-    }
-    const Vector6d a = (corrected[1] * corrected[0].Inverse()).Log();
-    const Vector6d b = (corrected[2] * corrected[1].Inverse()).Log();
-    Eigen::Map<Vector6d> r(residuals);
-    r = sqrt_weights_.asDiagonal() * (world_projector_ * (b - a));
-    if (jacobians == nullptr) return true;
-
-    const Matrix6d s_pi = sqrt_weights_.asDiagonal() * world_projector_;
-    // ∂r/∂ε_k for the left perturbation of each corrected pose.
-    const Matrix6d d_r_d_eps[3] = {
-        s_pi * SE3d::RightJacobianInverse(a),
-        -s_pi * (SE3d::LeftJacobianInverse(a) + SE3d::RightJacobianInverse(b)),
-        s_pi * SE3d::LeftJacobianInverse(b),
-    };
-    for (int k = 0; k < 3; ++k) {
-      if (jacobians[2 * k] != nullptr) {
-        Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>> j(jacobians[2 * k]);
-        j = d_r_d_eps[k] * SE3d::LeftJacobian(eta[k]) * world_projector_;
-      }
-      if (jacobians[2 * k + 1] != nullptr) {
-        const Eigen::Matrix<double, 6, 6> local = d_r_d_eps[k] * corrected[k].Adjoint();
-        SE3LocalToAmbientJacobian<6>(parameters[2 * k + 1], local, jacobians[2 * k + 1]);
-      }
-    }
-    return true;
+    return motion_prior_internal::Evaluate<kPoses>(world_projector_,
+                                                   sqrt_weights_,
+                                                   motion_prior_internal::Coefficients<kPoses>(),
+                                                   parameters,
+                                                   residuals,
+                                                   jacobians);
   }
 
  private:
   geometry::Matrix6d world_projector_;
   geometry::Vector6d sqrt_weights_;
 };
+
+using ConstantVelocityCost = MotionPriorCost<3>;
+using ConstantAccelerationCost = MotionPriorCost<4>;
 
 }  // namespace twist::optimization

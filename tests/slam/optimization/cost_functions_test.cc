@@ -408,27 +408,39 @@ TEST(DynamicReprojectionCostTest, StereoAnalyticMatchesAutodiffAndFiniteDifferen
   CheckDynamicReprojection<3>(32);
 }
 
-// ------------------------------------------------------------ (d) constant velocity
-TEST(ConstantVelocityCostTest, AnalyticMatchesAutodiffAndFiniteDifferences) {
-  Random random(41);
+// ------------------------------------------- (d) constant velocity / acceleration
+// MotionPriorCost<kPoses> against its autodiff twin and finite differences:
+// random poses, twists, weights and projectors of every rank.
+template <int kPoses>
+void CheckMotionPrior(uint64_t seed) {
+  Random random(seed);
   SE3Manifold se3;
   for (int trial = 0; trial < kTrials; ++trial) {
     const Matrix6d projector = random.WorldProjector(trial % 7);
     Vector6d sqrt_weights;
     for (int i = 0; i < 6; ++i) sqrt_weights[i] = random.Uniform(0.5, 3.0);
     std::vector<std::vector<double>> params;
+    std::vector<const ceres::Manifold*> manifolds;
     SE3d pose = random.Pose(3.0);
-    for (int k = 0; k < 3; ++k) {
+    for (int k = 0; k < kPoses; ++k) {
       const Vector6d xi = random.Twist(0.3);
       params.emplace_back(xi.data(), xi.data() + 6);
       params.push_back(PoseParams(pose));
+      manifolds.insert(manifolds.end(), {nullptr, &se3});
       pose = SE3d::Exp(random.Twist(0.6)) * pose;
     }
-    ConstantVelocityCost analytic(projector, sqrt_weights);
+    MotionPriorCost<kPoses> analytic(projector, sqrt_weights);
     std::unique_ptr<ceres::CostFunction> autodiff(
-        ConstantVelocityFunctor::Create(projector, sqrt_weights));
-    CheckCostPair(analytic, *autodiff, params, {nullptr, &se3, nullptr, &se3, nullptr, &se3});
+        MotionPriorFunctor<kPoses>::Create(projector, sqrt_weights));
+    CheckCostPair(analytic, *autodiff, params, manifolds);
   }
+}
+
+TEST(ConstantVelocityCostTest, AnalyticMatchesAutodiffAndFiniteDifferences) {
+  CheckMotionPrior<3>(41);
+}
+TEST(ConstantAccelerationCostTest, AnalyticMatchesAutodiffAndFiniteDifferences) {
+  CheckMotionPrior<4>(43);
 }
 
 TEST(ConstantVelocityCostTest, ZeroForConstantVelocityMotion) {
@@ -451,6 +463,42 @@ TEST(ConstantVelocityCostTest, ZeroForConstantVelocityMotion) {
   params[5] = q2_fast.data();
   ASSERT_TRUE(cost.Evaluate(params, r.data(), nullptr));
   EXPECT_LT((r - velocity).norm(), 1e-9);
+}
+
+TEST(ConstantAccelerationCostTest, ZeroForConstantAccelerationMotionWhereConstantVelocityIsNot) {
+  Random random(44);
+  const Matrix6d projector = random.WorldProjector(3);
+  const Vector6d velocity = projector * random.Twist(0.5);
+  const Vector6d acceleration = projector * random.Twist(0.05);
+  std::vector<SE3d> poses = {random.Pose(2.0)};
+  for (int k = 0; k < 3; ++k) {
+    poses.push_back(SE3d::Exp(velocity + k * acceleration) * poses.back());
+  }
+  const std::vector<double> zero(6, 0.0);
+  std::vector<std::vector<double>> q;
+  for (const SE3d& p : poses) q.push_back(PoseParams(p));
+  const double* params[] = {zero.data(),
+                            q[0].data(),
+                            zero.data(),
+                            q[1].data(),
+                            zero.data(),
+                            q[2].data(),
+                            zero.data(),
+                            q[3].data()};
+  ConstantAccelerationCost cost(projector, Vector6d::Ones());
+  Vector6d r;
+  ASSERT_TRUE(cost.Evaluate(params, r.data(), nullptr));
+  EXPECT_LT(r.norm(), 1e-9);
+  // The constant-velocity term of the same motion reads the acceleration.
+  ConstantVelocityCost velocity_cost(projector, Vector6d::Ones());
+  ASSERT_TRUE(velocity_cost.Evaluate(params, r.data(), nullptr));
+  EXPECT_LT((r - acceleration).norm(), 1e-9);
+  // A change of acceleration (jerk) shows up.
+  const SE3d p3_jerk = SE3d::Exp(velocity + 3.0 * acceleration) * poses[2];
+  const std::vector<double> q3_jerk = PoseParams(p3_jerk);
+  params[7] = q3_jerk.data();
+  ASSERT_TRUE(cost.Evaluate(params, r.data(), nullptr));
+  EXPECT_LT((r - acceleration).norm(), 1e-9);
 }
 
 }  // namespace
