@@ -20,10 +20,19 @@ std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
     // rendered scenes the last poses of lost cars ran off by metres).
     if (object.state == ObjectState::kLost) continue;
     std::vector<const ObjectPoseSample*> samples;
+    const ObjectPoseSample* before_window = nullptr;  // the sample just before the first
     for (const ObjectPoseSample& s : object.history) {
-      if (keyframe_of_frame.count(s.frame_index) > 0) samples.push_back(&s);
+      if (keyframe_of_frame.count(s.frame_index) > 0) {
+        samples.push_back(&s);
+      } else if (samples.empty()) {
+        before_window = &s;
+      }
     }
     if (static_cast<int>(samples.size()) < options.min_frames) continue;
+    // The window slid along a continuous track: its first two frames were
+    // refined in earlier windows, and fixing both keeps the velocity there.
+    const bool slid = options.keep_velocity_at_gauge && before_window != nullptr &&
+                      before_window->frame_index + 1 == samples[0]->frame_index;
     // Points observed often enough within the window.
     std::unordered_map<int64_t, int> count;
     for (const ObjectPoseSample* s : samples) {
@@ -59,7 +68,10 @@ std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
       // term spans the gap, and a continued object (new points only) would
       // otherwise have no gauge there.
       f.follows_previous = k == 0 || s->frame_index == samples[k - 1]->frame_index + 1;
-      f.fixed = k == 0 || s->held || held_next || !f.follows_previous;
+      f.fixed =
+          k == 0 || (k == 1 && slid && f.follows_previous) || s->held || held_next ||
+          !f.follows_previous ||
+          (options.fix_coasted_newest_frame && k + 1 == samples.size() && s->observations.empty());
       ba.frames.push_back(f);
       link.frame_indices.push_back(s->frame_index);
       for (const ObjectPointObservation& o : s->observations) {

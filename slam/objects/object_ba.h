@@ -34,6 +34,31 @@ struct ObjectBaOptions {
   // the cost of half a frame of lag (docs/objects.md §17); 3 steps lag the
   // braking cars (follow_braking 0.72 -> 0.84 km/h).
   int twist_steps = 2;
+  // The newest frame, when the tracker coasted the object in it (a refused
+  // step: the prediction stands, no observation kept), stays fixed: nothing
+  // in it measures the object, so the motion priors alone would place it by
+  // extrapolating its neighbours' noise. With the constant-acceleration
+  // prior (DynamicBaOptions::const_acceleration_sqrt_weight) that
+  // extrapolation is a quadratic (a crossing car jumped 0.2 m sideways on
+  // intersection seed 4): turn this on with it. With the constant-velocity
+  // prior alone it made no difference worth having on the rendered runs
+  // (docs/objects.md section 29): off by default. Once later frames measure
+  // the object the coasted frame is interpolated between them; fixing it
+  // there too held them back.
+  bool fix_coasted_newest_frame = false;
+  // When the window has slid along an object's continuous track (the
+  // history sample just before its first frame is the frame before), its
+  // second frame is fixed too. With the first one only (the gauge of the
+  // points), the constant-velocity prior pulls the second towards the chord
+  // of its neighbours: back for a braking car, forward for an accelerating
+  // one, by ~2 cm at 4 m/s². The next window fixes that frame where this one
+  // left it, so the pull adds up frame after frame (a braking car 0.38 m
+  // behind after 40 frames; follow_braking's lead car drifted 0.4 m). Two
+  // fixed frames keep the velocity at the gauge, and every free frame but
+  // the two newest has the pulls of its triplets cancel while the
+  // acceleration is constant (docs/math.md section 13; follow_braking's lead
+  // car 0.270 -> 0.144 m ATE, docs/objects.md section 29).
+  bool keep_velocity_at_gauge = true;
 };
 
 // For every tracked object (lost ones are left out), the history samples
@@ -41,7 +66,10 @@ struct ObjectBaOptions {
 // problem->keyframes; pass the temporal set) become BaObjectFrames (the
 // oldest one fixed: the gauge of the object's points; also fixed: the frames
 // in which the tracker held the object stationary and the frame each hold
-// started from), and their inlier observations become dynamic terms.
+// started from; with options.keep_velocity_at_gauge the second one when the
+// window slid along the track; with options.fix_coasted_newest_frame the
+// newest one if the object coasted in it), and their inlier observations
+// become dynamic terms.
 std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
                                                 const std::map<int64_t, int>& keyframe_of_frame,
                                                 const ObjectBaOptions& options,

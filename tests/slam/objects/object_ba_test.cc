@@ -308,5 +308,148 @@ TEST(ObjectBa, AContinuedTrackKeepsItsPoseAfterTheGap) {
   }
 }
 
+// A car tracked with the dynamic BA after every frame, as the object stage
+// runs it, whose measurement fails (1 m aside) in frame 11 of 14: the tracker
+// refuses that step and coasts on its prediction (from the refined state),
+// keeping no observation. While that frame is the newest, nothing but the
+// motion priors would place it, by extrapolation (here the constant-
+// acceleration prior on translation, with the constant-velocity one on
+// rotation only): ObjectBaOptions::fix_coasted_newest_frame keeps the
+// tracker's prediction, exactly, and it is the better guess. In the next
+// windows the frame is free again, interpolated between measured ones.
+TEST(ObjectBa, CoastedFramesStayWhereTheTrackerPutThem) {
+  const int kGlitch = 11;
+  std::map<bool, std::pair<double, double>> error_of;  // fix -> at the coast, at the end
+  for (bool fix : {true, false}) {
+    double sum_error_at_coast = 0.0, sum_error_end = 0.0;
+    const int kSeeds = 6;
+    for (int seed = 0; seed < kSeeds; ++seed) {
+      CarSequence seq(0.7, 60 + static_cast<uint64_t>(seed));
+      ObjectTracker tracker(seq.camera(), ObjectTrackerOptions{});
+      DynamicBaProblem problem;
+      problem.camera = seq.camera();
+      std::map<int64_t, int> keyframe_of_frame;
+      std::map<int64_t, SE3d> gt;
+      ObjectBaOptions options;
+      options.fix_coasted_newest_frame = fix;
+      DynamicBaOptions ba;
+      ba.const_velocity_sqrt_weight.head<3>().setZero();
+      ba.const_acceleration_sqrt_weight << 40, 40, 40, 0, 0, 0;
+      // Error of the motion since the object's first frame, at its newest.
+      auto motion_error = [&](const TrackedObject& o) {
+        const ObjectPoseSample& first = o.history.front();
+        return TranslationError(
+            o.world_from_object * first.world_from_object.Inverse(),
+            gt.at(o.history.back().frame_index) * gt.at(first.frame_index).Inverse());
+      };
+      for (int i = 0; i < 14; ++i) {
+        seq.set_measurement_glitch(i == kGlitch ? SE3d(geometry::SO3d(), Eigen::Vector3d(1.0, 0, 0))
+                                                : SE3d());
+        const ObjectFrameInput f = seq.Next(5, true);
+        gt[f.frame_index] = seq.world_from_object();
+        ASSERT_TRUE(tracker.Process(f).ok());
+        AddKeyframe(f, i, &problem, &keyframe_of_frame);
+        ASSERT_EQ(tracker.objects().size(), 1u);
+        const TrackedObject& o = tracker.objects().begin()->second;
+        if (o.history.size() < 3) continue;
+        const size_t n = o.history.size();
+        const bool coasted = o.history.back().observations.empty();
+        ASSERT_EQ(coasted, i == kGlitch) << "frame " << i;
+        const SE3d predicted = o.world_from_object;
+        problem.objects.clear();
+        const auto links = AddTrackedObjectsToBa(tracker, keyframe_of_frame, options, &problem);
+        ASSERT_EQ(links.size(), 1u);
+        ASSERT_EQ(problem.objects[0].frames.size(), n);
+        EXPECT_EQ(problem.objects[0].frames[n - 1].fixed, coasted && fix) << "frame " << i;
+        const auto summary = SolveDynamicBa(&problem, ba);
+        ASSERT_TRUE(summary.ok() && summary->usable);
+        ApplyBaToTrackedObjects(problem, links, options, &tracker);
+        if (coasted && fix) {
+          EXPECT_LT((o.world_from_object.translation() - predicted.translation()).norm(), 1e-12);
+          EXPECT_LT(RotationErrorDeg(o.world_from_object, predicted), 1e-9);
+        }
+        if (coasted) sum_error_at_coast += motion_error(o);
+        if (i == 13) sum_error_end += motion_error(o);
+      }
+    }
+    std::printf(
+        "[coasted frame %s] mean error of the motion to the current pose: at the coast %.3f m, "
+        "2 frames later %.3f m\n",
+        fix ? "fixed" : "free",
+        sum_error_at_coast / kSeeds,
+        sum_error_end / kSeeds);
+    error_of[fix] = {sum_error_at_coast / kSeeds, sum_error_end / kSeeds};
+  }
+  EXPECT_LT(error_of[true].first, 0.9 * error_of[false].first);
+  EXPECT_NEAR(error_of[true].second, error_of[false].second, 0.005);
+}
+// A car braking from 8 m/s at 2 m/s² (0.02 m per frame squared), tracked over
+// 36 frames with the dynamic BA after every frame on the last 10 frames, as
+// the object stage runs it. Once the window slides along the track, its
+// second frame is fixed too (ObjectBaOptions::keep_velocity_at_gauge); without
+// that, the constant-velocity prior's pull on the frame next to the gauge
+// adds up from window to window and the car falls behind.
+TEST(ObjectBa, ASlidingWindowKeepsTheVelocityAtItsGauge) {
+  const int kFrames = 36, kWindow = 10;
+  std::map<bool, double> error_of;
+  for (bool keep : {true, false}) {
+    double sum_error = 0.0;
+    const int kSeeds = 4;
+    for (int seed = 0; seed < kSeeds; ++seed) {
+      CarSequence seq(0.5, 80 + static_cast<uint64_t>(seed));
+      const Vector6d step0 = seq.step();
+      ObjectTracker tracker(seq.camera(), ObjectTrackerOptions{});
+      ObjectBaOptions options;
+      options.keep_velocity_at_gauge = keep;
+      std::map<int64_t, SE3d> gt, camera_from_world;
+      std::map<int64_t, int64_t> timestamp;
+      for (int i = 0; i < kFrames; ++i) {
+        seq.set_step(step0 * (0.8 - 0.02 * i) / 0.8);
+        const ObjectFrameInput f = seq.Next(5, true);
+        gt[f.frame_index] = seq.world_from_object();
+        camera_from_world[f.frame_index] = f.camera_from_world;
+        timestamp[f.frame_index] = f.timestamp_ns;
+        ASSERT_TRUE(tracker.Process(f).ok());
+        ASSERT_EQ(tracker.objects().size(), 1u);
+        DynamicBaProblem problem;
+        problem.camera = seq.camera();
+        std::map<int64_t, int> keyframe_of_frame;
+        for (int64_t j = std::max<int64_t>(0, f.frame_index - kWindow + 1); j <= f.frame_index;
+             ++j) {
+          BaKeyframe kf;
+          kf.id = j;
+          kf.timestamp_ns = timestamp[j];
+          kf.camera_from_world = camera_from_world[j];
+          kf.fixed = true;
+          keyframe_of_frame[j] = static_cast<int>(problem.keyframes.size());
+          problem.keyframes.push_back(kf);
+        }
+        const auto links = AddTrackedObjectsToBa(tracker, keyframe_of_frame, options, &problem);
+        if (links.empty()) continue;
+        const TrackedObject& o = tracker.objects().begin()->second;
+        const bool slid = o.history.front().frame_index < f.frame_index - kWindow + 1;
+        ASSERT_GE(problem.objects[0].frames.size(), 3u);
+        EXPECT_TRUE(problem.objects[0].frames[0].fixed);
+        EXPECT_EQ(problem.objects[0].frames[1].fixed, keep && slid) << "frame " << i;
+        const auto summary = SolveDynamicBa(&problem, DynamicBaOptions{});
+        ASSERT_TRUE(summary.ok() && summary->usable);
+        ApplyBaToTrackedObjects(problem, links, options, &tracker);
+      }
+      const TrackedObject& o = tracker.objects().begin()->second;
+      ASSERT_EQ(o.history.back().frame_index, kFrames - 1);
+      const ObjectPoseSample& first = o.history.front();
+      sum_error += TranslationError(o.world_from_object * first.world_from_object.Inverse(),
+                                    gt.at(kFrames - 1) * gt.at(first.frame_index).Inverse());
+    }
+    error_of[keep] = sum_error / kSeeds;
+    std::printf(
+        "[braking car, sliding BA windows, %s] error of the motion after %d frames %.3f m\n",
+        keep ? "2 fixed frames" : "1 fixed frame",
+        kFrames,
+        error_of[keep]);
+  }
+  EXPECT_LT(error_of[true], 0.6 * error_of[false]);
+}
+
 }  // namespace
 }  // namespace twist::objects
