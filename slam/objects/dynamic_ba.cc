@@ -99,6 +99,11 @@ absl::Status DynamicBaProblem::Validate() const {
       }
       has_frame[static_cast<size_t>(f.keyframe)] = true;
     }
+    if (obj.soft_normal_step_sigma_m < 0.0 ||
+        (obj.soft_normal_step_sigma_m > 0.0 && std::abs(obj.soft_normal.norm() - 1.0) > 1e-6)) {
+      return absl::InvalidArgumentError(Where("object", k) +
+                                        ": a soft normal needs a unit direction and sigma >= 0");
+    }
     for (size_t i = 0; i < obj.observations.size(); ++i) {
       const BaObservation& o = obj.observations[i];
       const std::string where = Where("object", k) + " " + Where("observation", i);
@@ -310,11 +315,11 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
       if (obj.fixed_points) ceres_problem.SetParameterBlockConstant(p);
       ++summary.num_dynamic_terms;
     }
-    // Motion priors over runs of consecutive frames: constant velocity over
-    // triplets, constant acceleration over quadruplets.
-    auto add_motion_prior = [&](int num_frames, const Vector6d& sqrt_weight) {
+    // Priors over runs of consecutive frames: constant velocity over
+    // triplets, constant acceleration over quadruplets (Huber), the step
+    // along a soft normal over pairs (Gaussian).
+    auto add_priors = [&](int num_frames, bool robust, const auto& make_cost) {
       int added = 0;
-      if (sqrt_weight.squaredNorm() == 0.0) return added;
       for (size_t f = 0; f + static_cast<size_t>(num_frames) <= obj.frames.size(); ++f) {
         bool consecutive = true;
         for (int d = 1; d < num_frames; ++d) consecutive &= obj.frames[f + d].follows_previous;
@@ -324,21 +329,9 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
           blocks[2 * d] = op.twist[f + d];
           blocks[2 * d + 1] = op.pose[f + d];
         }
-        ceres::CostFunction* cost;
-        if (num_frames == 3) {
-          cost = options.use_autodiff
-                     ? optimization::ConstantVelocityFunctor::Create(op.projector, sqrt_weight)
-                     : static_cast<ceres::CostFunction*>(
-                           new optimization::ConstantVelocityCost(op.projector, sqrt_weight));
-        } else {
-          cost = options.use_autodiff
-                     ? optimization::ConstantAccelerationFunctor::Create(op.projector, sqrt_weight)
-                     : static_cast<ceres::CostFunction*>(
-                           new optimization::ConstantAccelerationCost(op.projector, sqrt_weight));
-        }
         ceres_problem.AddResidualBlock(
-            cost,
-            new ceres::HuberLoss(options.const_velocity_huber),
+            make_cost(),
+            robust ? new ceres::HuberLoss(options.const_velocity_huber) : nullptr,
             std::vector<double*>(blocks.begin(), blocks.begin() + 2 * num_frames));
         for (int d = 0; d < num_frames; ++d) {
           ceres_problem.SetManifold(blocks[2 * d + 1], &se3_manifold);
@@ -349,10 +342,32 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
       }
       return added;
     };
+    auto motion_prior = [&](int num_frames, const Vector6d& sqrt_weight) {
+      if (sqrt_weight.squaredNorm() == 0.0) return 0;
+      return add_priors(num_frames, true, [&]() -> ceres::CostFunction* {
+        if (num_frames == 3) {
+          return options.use_autodiff
+                     ? optimization::ConstantVelocityFunctor::Create(op.projector, sqrt_weight)
+                     : new optimization::ConstantVelocityCost(op.projector, sqrt_weight);
+        }
+        return options.use_autodiff
+                   ? optimization::ConstantAccelerationFunctor::Create(op.projector, sqrt_weight)
+                   : new optimization::ConstantAccelerationCost(op.projector, sqrt_weight);
+      });
+    };
     if (options.use_const_velocity) {
-      summary.num_const_velocity_terms += add_motion_prior(3, options.const_velocity_sqrt_weight);
+      summary.num_const_velocity_terms += motion_prior(3, options.const_velocity_sqrt_weight);
       summary.num_const_acceleration_terms +=
-          add_motion_prior(4, options.const_acceleration_sqrt_weight);
+          motion_prior(4, options.const_acceleration_sqrt_weight);
+    }
+    if (obj.soft_normal_step_sigma_m > 0.0 && options.constrained) {
+      const Eigen::Matrix<double, 1, 6> map =
+          optimization::NormalStepMap(obj.soft_normal, obj.soft_normal_step_sigma_m);
+      summary.num_normal_step_terms += add_priors(2, false, [&]() -> ceres::CostFunction* {
+        return options.use_autodiff
+                   ? optimization::NormalStepFunctor::Create(op.projector, map, {1.0})
+                   : new optimization::NormalStepCost(op.projector, map, {1.0});
+      });
     }
     // Keep the corrections inside range(Π) (well-conditioned normal equations).
     const Eigen::Matrix<double, 6, Eigen::Dynamic> basis = ProjectorRangeBasis(op.projector);

@@ -5,6 +5,7 @@
 //   e_dyna  = ρ(‖x_ij − π(c_i T_w · Exp(Π ξ̃_i) · w T_o(i) · o X_j)‖_Σ)
 //   e_const = ρ(‖Π ξ_{i+1} − Π ξ_i‖_W),  ξ_{i+1} = Log(P_{i+1} P_i⁻¹),  P_i = Exp(Π ξ̃_i) w T_o(i)
 //   e_acc   = ρ(‖Π (ξ_{i+1} − 2 ξ_i + ξ_{i−1})‖_W')  (constant acceleration; optional)
+//   e_norm  = (nᵀ v(ξ_{i+1})) / σ_n  (step along a soft normal; optional)
 //
 // over a window of keyframes: the temporal set (every frame of the last
 // temporal_window_s seconds) where camera AND object poses are optimised, and
@@ -76,6 +77,13 @@ struct BaObject {
   std::vector<Eigen::Vector3d> points_in_object;
   std::vector<BaObservation> observations;
   bool fixed_points = false;
+  // A soft freedom along a unit world direction (the normal of a planar
+  // joint's plane): world_projector then includes translation along it, and
+  // each step between consecutive frames gets the Gaussian prior
+  // (nᵀ v(s)) / soft_normal_step_sigma_m (docs/objects.md section 30).
+  // 0: none.
+  Eigen::Vector3d soft_normal = Eigen::Vector3d::Zero();
+  double soft_normal_step_sigma_m = 0.0;
 };
 
 struct DynamicBaProblem {
@@ -130,6 +138,7 @@ struct DynamicBaSummary {
   int num_dynamic_terms = 0;
   int num_const_velocity_terms = 0;
   int num_const_acceleration_terms = 0;
+  int num_normal_step_terms = 0;
   bool usable = false;
   std::string message;
 };

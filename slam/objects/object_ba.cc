@@ -42,6 +42,14 @@ std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
     BaObject ba;
     ba.id = id;
     ba.world_projector = object.joint.WorldProjector();
+    if (options.soft_normal_step_sigma_m > 0.0 &&
+        object.joint.type() == joints::JointType::kPlanar) {
+      // Π of the plane plus translation along its normal (the joint frame's z).
+      const geometry::Matrix6d ad = object.joint.world_from_joint().Adjoint();
+      ba.world_projector += ad * geometry::Vector6d::Unit(2).asDiagonal() * ad.inverse();
+      ba.soft_normal = object.joint.world_from_joint().rotation().col(2);
+      ba.soft_normal_step_sigma_m = options.soft_normal_step_sigma_m;
+    }
     ObjectBaLink link;
     link.object_id = id;
     for (const ObjectPoint& p : object.points) {

@@ -59,6 +59,15 @@ struct ObjectBaOptions {
   // acceleration is constant (docs/math.md section 13; follow_braking's lead
   // car 0.270 -> 0.144 m ATE, docs/objects.md section 29).
   bool keep_velocity_at_gauge = true;
+  // A planar object may also move along its plane's normal in the BA, each
+  // step by N(0, σ²) (σ in m per frame; 0: not at all). The camera's height
+  // estimate drifts by 1-2 cm along a run while the road plane under a car
+  // stays where it was fitted; held to that plane, the car can only match
+  // its image height by moving in depth, ~10x the height error. On the
+  // rendered runs 2 mm and 1 cm helped the lead car of follow_braking but
+  // cost the others more (ATE 0.207 -> 0.224 / 0.256 m on 12 runs): off
+  // (docs/objects.md section 30).
+  double soft_normal_step_sigma_m = 0.0;
 };
 
 // For every tracked object (lost ones are left out), the history samples

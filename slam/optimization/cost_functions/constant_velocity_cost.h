@@ -49,11 +49,12 @@ namespace twist::optimization {
 
 namespace motion_prior_internal {
 
-// r = W^{1/2} Π Σ_k c_k Log(P_{k+1} P_k⁻¹) for kPoses corrected poses given as
-// (twist, pose) parameter pairs.
-template <typename T, int kPoses>
+// r = M Σ_k c_k Log(P_{k+1} P_k⁻¹) for kPoses corrected poses given as
+// (twist, pose) parameter pairs, M (kResiduals × 6) the residual map
+// (W^{1/2} Π for the motion priors).
+template <typename T, int kPoses, int kResiduals>
 void Residual(const geometry::Matrix6d& world_projector,
-              const geometry::Vector6d& sqrt_weights,
+              const Eigen::Matrix<double, kResiduals, 6>& residual_map,
               const std::array<double, kPoses - 1>& coefficients,
               const std::array<const T*, 2 * kPoses>& parameters,
               T* residuals) {
@@ -69,14 +70,14 @@ void Residual(const geometry::Matrix6d& world_projector,
   for (int k = 0; k + 1 < kPoses; ++k) {
     combination += T(coefficients[k]) * (corrected[k + 1] * corrected[k].Inverse()).Log();
   }
-  Eigen::Map<Vector6T> r(residuals);
-  r = sqrt_weights.template cast<T>().asDiagonal() * (pi * combination);
+  Eigen::Map<Eigen::Matrix<T, kResiduals, 1>> r(residuals);
+  r = residual_map.template cast<T>() * combination;
 }
 
 // The analytic residual and Jacobians of Residual (see the header comment).
-template <int kPoses>
+template <int kPoses, int kResiduals>
 bool Evaluate(const geometry::Matrix6d& world_projector,
-              const geometry::Vector6d& sqrt_weights,
+              const Eigen::Matrix<double, kResiduals, 6>& residual_map,
               const std::array<double, kPoses - 1>& coefficients,
               double const* const* parameters,
               double* residuals,
@@ -84,6 +85,7 @@ bool Evaluate(const geometry::Matrix6d& world_projector,
   using geometry::Matrix6d;
   using geometry::SE3d;
   using geometry::Vector6d;
+  using JacobianLocal = Eigen::Matrix<double, kResiduals, 6>;
   Vector6d eta[kPoses];
   SE3d corrected[kPoses];
   for (int k = 0; k < kPoses; ++k) {
@@ -96,9 +98,8 @@ bool Evaluate(const geometry::Matrix6d& world_projector,
     steps[k] = (corrected[k + 1] * corrected[k].Inverse()).Log();
     combination += coefficients[k] * steps[k];
   }
-  const Matrix6d s_pi = sqrt_weights.asDiagonal() * world_projector;
-  Eigen::Map<Vector6d> r(residuals);
-  r = s_pi * combination;
+  Eigen::Map<Eigen::Matrix<double, kResiduals, 1>> r(residuals);
+  r = residual_map * combination;
   if (jacobians == nullptr) return true;
 
   for (int k = 0; k < kPoses; ++k) {
@@ -107,14 +108,14 @@ bool Evaluate(const geometry::Matrix6d& world_projector,
     Matrix6d d_step = Matrix6d::Zero();
     if (k > 0) d_step += coefficients[k - 1] * SE3d::LeftJacobianInverse(steps[k - 1]);
     if (k + 1 < kPoses) d_step -= coefficients[k] * SE3d::RightJacobianInverse(steps[k]);
-    const Matrix6d d_r_d_eps = s_pi * d_step;
+    const JacobianLocal d_r_d_eps = residual_map * d_step;
     if (jacobians[2 * k] != nullptr) {
-      Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>> j(jacobians[2 * k]);
+      Eigen::Map<Eigen::Matrix<double, kResiduals, 6, Eigen::RowMajor>> j(jacobians[2 * k]);
       j = d_r_d_eps * SE3d::LeftJacobian(eta[k]) * world_projector;
     }
     if (jacobians[2 * k + 1] != nullptr) {
-      const Eigen::Matrix<double, 6, 6> local = d_r_d_eps * corrected[k].Adjoint();
-      SE3LocalToAmbientJacobian<6>(parameters[2 * k + 1], local, jacobians[2 * k + 1]);
+      const JacobianLocal local = d_r_d_eps * corrected[k].Adjoint();
+      SE3LocalToAmbientJacobian<kResiduals>(parameters[2 * k + 1], local, jacobians[2 * k + 1]);
     }
   }
   return true;
@@ -132,26 +133,36 @@ constexpr std::array<double, kPoses - 1> Coefficients() {
 }
 
 // Parameter block sizes (twist 6, pose 7) × kPoses, as a Ceres size list.
-template <typename Functor, size_t... I>
+template <int kResiduals, typename Functor, size_t... I>
 ceres::CostFunction* NewAutoDiff(Functor* functor, std::index_sequence<I...>) {
-  return new ceres::AutoDiffCostFunction<Functor, 6, (I % 2 == 0 ? 6 : 7)...>(functor);
+  return new ceres::AutoDiffCostFunction<Functor, kResiduals, (I % 2 == 0 ? 6 : 7)...>(functor);
 }
-template <typename Sequence>
+template <int kResiduals, typename Sequence>
 struct Sized;
-template <size_t... I>
-struct Sized<std::index_sequence<I...>> {
-  using type = ceres::SizedCostFunction<6, (I % 2 == 0 ? 6 : 7)...>;
+template <int kResiduals, size_t... I>
+struct Sized<kResiduals, std::index_sequence<I...>> {
+  using type = ceres::SizedCostFunction<kResiduals, (I % 2 == 0 ? 6 : 7)...>;
 };
+
+// M = W^{1/2} Π.
+inline Eigen::Matrix<double, 6, 6> WeightedProjector(const geometry::Matrix6d& world_projector,
+                                                     const geometry::Vector6d& sqrt_weights) {
+  return sqrt_weights.asDiagonal() * world_projector;
+}
 
 }  // namespace motion_prior_internal
 
 // ----------------------------------------------------------------- autodiff
-template <int kPoses>
-class MotionPriorFunctor {
+// r = M Σ_k c_k s_k over kPoses (twist, pose) pairs, evaluated literally.
+template <int kPoses, int kResiduals>
+class StepCombinationFunctor {
  public:
-  MotionPriorFunctor(const geometry::Matrix6d& world_projector,
-                     const geometry::Vector6d& sqrt_weights)
-      : world_projector_(world_projector), sqrt_weights_(sqrt_weights) {}
+  StepCombinationFunctor(const geometry::Matrix6d& world_projector,
+                         const Eigen::Matrix<double, kResiduals, 6>& residual_map,
+                         const std::array<double, kPoses - 1>& coefficients)
+      : world_projector_(world_projector),
+        residual_map_(residual_map),
+        coefficients_(coefficients) {}
 
   // (ξ̃_0, pose_0, ..., ξ̃_{kPoses−1}, pose_{kPoses−1}, residuals).
   template <typename T, typename... Rest>
@@ -161,53 +172,95 @@ class MotionPriorFunctor {
     std::array<const T*, 2 * kPoses> parameters;
     std::copy_n(all.begin(), 2 * kPoses, parameters.begin());
     T* residuals = std::get<2 * kPoses - 1>(std::make_tuple(rest...));
-    motion_prior_internal::Residual<T, kPoses>(world_projector_,
-                                               sqrt_weights_,
-                                               motion_prior_internal::Coefficients<kPoses>(),
-                                               parameters,
-                                               residuals);
+    motion_prior_internal::Residual<T, kPoses, kResiduals>(
+        world_projector_, residual_map_, coefficients_, parameters, residuals);
     return true;
   }
 
   static ceres::CostFunction* Create(const geometry::Matrix6d& world_projector,
-                                     const geometry::Vector6d& sqrt_weights) {
-    return motion_prior_internal::NewAutoDiff(new MotionPriorFunctor(world_projector, sqrt_weights),
-                                              std::make_index_sequence<2 * kPoses>());
+                                     const Eigen::Matrix<double, kResiduals, 6>& residual_map,
+                                     const std::array<double, kPoses - 1>& coefficients) {
+    return motion_prior_internal::NewAutoDiff<kResiduals>(
+        new StepCombinationFunctor(world_projector, residual_map, coefficients),
+        std::make_index_sequence<2 * kPoses>());
   }
 
  private:
   geometry::Matrix6d world_projector_;
-  geometry::Vector6d sqrt_weights_;
+  Eigen::Matrix<double, kResiduals, 6> residual_map_;
+  std::array<double, kPoses - 1> coefficients_;
 };
 
-using ConstantVelocityFunctor = MotionPriorFunctor<3>;
-using ConstantAccelerationFunctor = MotionPriorFunctor<4>;
-
 // ----------------------------------------------------------------- analytic
-template <int kPoses>
-class MotionPriorCost final
-    : public motion_prior_internal::Sized<std::make_index_sequence<2 * kPoses>>::type {
+template <int kPoses, int kResiduals>
+class StepCombinationCost
+    : public motion_prior_internal::Sized<kResiduals, std::make_index_sequence<2 * kPoses>>::type {
  public:
-  MotionPriorCost(const geometry::Matrix6d& world_projector, const geometry::Vector6d& sqrt_weights)
-      : world_projector_(world_projector), sqrt_weights_(sqrt_weights) {}
+  StepCombinationCost(const geometry::Matrix6d& world_projector,
+                      const Eigen::Matrix<double, kResiduals, 6>& residual_map,
+                      const std::array<double, kPoses - 1>& coefficients)
+      : world_projector_(world_projector),
+        residual_map_(residual_map),
+        coefficients_(coefficients) {}
 
   bool Evaluate(double const* const* parameters,
                 double* residuals,
                 double** jacobians) const override {
-    return motion_prior_internal::Evaluate<kPoses>(world_projector_,
-                                                   sqrt_weights_,
-                                                   motion_prior_internal::Coefficients<kPoses>(),
-                                                   parameters,
-                                                   residuals,
-                                                   jacobians);
+    return motion_prior_internal::Evaluate<kPoses, kResiduals>(
+        world_projector_, residual_map_, coefficients_, parameters, residuals, jacobians);
   }
 
  private:
   geometry::Matrix6d world_projector_;
-  geometry::Vector6d sqrt_weights_;
+  Eigen::Matrix<double, kResiduals, 6> residual_map_;
+  std::array<double, kPoses - 1> coefficients_;
 };
 
+// The motion priors: M = W^{1/2} Π, c of Coefficients<kPoses>.
+template <int kPoses>
+class MotionPriorFunctor : public StepCombinationFunctor<kPoses, 6> {
+ public:
+  MotionPriorFunctor(const geometry::Matrix6d& world_projector,
+                     const geometry::Vector6d& sqrt_weights)
+      : StepCombinationFunctor<kPoses, 6>(
+            world_projector,
+            motion_prior_internal::WeightedProjector(world_projector, sqrt_weights),
+            motion_prior_internal::Coefficients<kPoses>()) {}
+
+  static ceres::CostFunction* Create(const geometry::Matrix6d& world_projector,
+                                     const geometry::Vector6d& sqrt_weights) {
+    return motion_prior_internal::NewAutoDiff<6>(
+        new MotionPriorFunctor(world_projector, sqrt_weights),
+        std::make_index_sequence<2 * kPoses>());
+  }
+};
+
+template <int kPoses>
+class MotionPriorCost final : public StepCombinationCost<kPoses, 6> {
+ public:
+  MotionPriorCost(const geometry::Matrix6d& world_projector, const geometry::Vector6d& sqrt_weights)
+      : StepCombinationCost<kPoses, 6>(
+            world_projector,
+            motion_prior_internal::WeightedProjector(world_projector, sqrt_weights),
+            motion_prior_internal::Coefficients<kPoses>()) {}
+};
+
+using ConstantVelocityFunctor = MotionPriorFunctor<3>;
+using ConstantAccelerationFunctor = MotionPriorFunctor<4>;
 using ConstantVelocityCost = MotionPriorCost<3>;
 using ConstantAccelerationCost = MotionPriorCost<4>;
+
+// A prior on the translation of one step along a unit world direction n
+// (the normal of a planar joint's plane, which the object is given a soft
+// freedom along): r = (nᵀ v(s_0)) / σ, s_0 = Log(P_1 P_0⁻¹), v its
+// translation part; two (twist, pose) pairs, Π the object's (extended)
+// world projector.
+inline Eigen::Matrix<double, 1, 6> NormalStepMap(const Eigen::Vector3d& normal, double sigma) {
+  Eigen::Matrix<double, 1, 6> m = Eigen::Matrix<double, 1, 6>::Zero();
+  m.leftCols<3>() = normal.transpose() / sigma;
+  return m;
+}
+using NormalStepFunctor = StepCombinationFunctor<2, 1>;
+using NormalStepCost = StepCombinationCost<2, 1>;
 
 }  // namespace twist::optimization

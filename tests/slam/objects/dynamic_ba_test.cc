@@ -162,6 +162,13 @@ TEST(DynamicBa, ValidatesTheProblem) {
   bad = w.problem;
   bad.objects[0].observations[0].keyframe = 0;  // the car has no pose in keyframe 0
   EXPECT_EQ(bad.Validate().code(), absl::StatusCode::kInvalidArgument);
+  bad = w.problem;
+  bad.objects[0].soft_normal_step_sigma_m = 0.01;  // and no direction
+  EXPECT_EQ(bad.Validate().code(), absl::StatusCode::kInvalidArgument);
+  bad.objects[0].soft_normal = Eigen::Vector3d(0, -1, 0);
+  EXPECT_TRUE(bad.Validate().ok());
+  bad.objects[0].soft_normal_step_sigma_m = -0.01;
+  EXPECT_EQ(bad.Validate().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_TRUE(InTemporalWindow(6'000'000'000, 10'000'000'000, 5.0));
   EXPECT_FALSE(InTemporalWindow(4'000'000'000, 10'000'000'000, 5.0));
 }

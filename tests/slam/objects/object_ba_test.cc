@@ -12,20 +12,49 @@ namespace {
 
 using namespace twist::objects::testing;  // NOLINT
 
-// Frame `f` as keyframe `id` of `problem` (camera pose fixed: from static
-// tracking, held here).
-void AddKeyframe(const ObjectFrameInput& f,
+// Frame `frame_index` as keyframe `id` of `problem` (camera pose fixed: from
+// static tracking, held here).
+void AddKeyframe(int64_t frame_index,
                  int64_t id,
+                 int64_t timestamp_ns,
+                 const SE3d& camera_from_world,
                  DynamicBaProblem* problem,
                  std::map<int64_t, int>* keyframe_of_frame) {
   BaKeyframe kf;
   kf.id = id;
-  kf.timestamp_ns = f.timestamp_ns;
-  kf.camera_from_world = f.camera_from_world;
+  kf.timestamp_ns = timestamp_ns;
+  kf.camera_from_world = camera_from_world;
   kf.fixed = true;
-  (*keyframe_of_frame)[f.frame_index] = static_cast<int>(problem->keyframes.size());
+  (*keyframe_of_frame)[frame_index] = static_cast<int>(problem->keyframes.size());
   problem->keyframes.push_back(kf);
 }
+void AddKeyframe(const ObjectFrameInput& f,
+                 int64_t id,
+                 DynamicBaProblem* problem,
+                 std::map<int64_t, int>* keyframe_of_frame) {
+  AddKeyframe(f.frame_index, id, f.timestamp_ns, f.camera_from_world, problem, keyframe_of_frame);
+}
+
+// The frames seen so far (timestamp, camera pose), and the object stage's
+// window over them: the last `window` frames as keyframes of a new problem.
+struct SeenFrames {
+  std::map<int64_t, std::pair<int64_t, SE3d>> frames;
+  void Add(const ObjectFrameInput& f) {
+    frames[f.frame_index] = {f.timestamp_ns, f.camera_from_world};
+  }
+  DynamicBaProblem Window(const geometry::StereoCamera& camera,
+                          int window,
+                          std::map<int64_t, int>* keyframe_of_frame) const {
+    DynamicBaProblem problem;
+    problem.camera = camera;
+    const int64_t newest = frames.rbegin()->first;
+    for (auto it = frames.lower_bound(newest - window + 1); it != frames.end(); ++it) {
+      AddKeyframe(
+          it->first, it->first, it->second.first, it->second.second, &problem, keyframe_of_frame);
+    }
+    return problem;
+  }
+};
 
 // Tracks the car of `seq` for `frames` frames, with every frame a keyframe
 // of `problem` (camera poses fixed: from static tracking, held here); the
@@ -401,29 +430,17 @@ TEST(ObjectBa, ASlidingWindowKeepsTheVelocityAtItsGauge) {
       ObjectTracker tracker(seq.camera(), ObjectTrackerOptions{});
       ObjectBaOptions options;
       options.keep_velocity_at_gauge = keep;
-      std::map<int64_t, SE3d> gt, camera_from_world;
-      std::map<int64_t, int64_t> timestamp;
+      std::map<int64_t, SE3d> gt;
+      SeenFrames seen;
       for (int i = 0; i < kFrames; ++i) {
         seq.set_step(step0 * (0.8 - 0.02 * i) / 0.8);
         const ObjectFrameInput f = seq.Next(5, true);
         gt[f.frame_index] = seq.world_from_object();
-        camera_from_world[f.frame_index] = f.camera_from_world;
-        timestamp[f.frame_index] = f.timestamp_ns;
+        seen.Add(f);
         ASSERT_TRUE(tracker.Process(f).ok());
         ASSERT_EQ(tracker.objects().size(), 1u);
-        DynamicBaProblem problem;
-        problem.camera = seq.camera();
         std::map<int64_t, int> keyframe_of_frame;
-        for (int64_t j = std::max<int64_t>(0, f.frame_index - kWindow + 1); j <= f.frame_index;
-             ++j) {
-          BaKeyframe kf;
-          kf.id = j;
-          kf.timestamp_ns = timestamp[j];
-          kf.camera_from_world = camera_from_world[j];
-          kf.fixed = true;
-          keyframe_of_frame[j] = static_cast<int>(problem.keyframes.size());
-          problem.keyframes.push_back(kf);
-        }
+        DynamicBaProblem problem = seen.Window(seq.camera(), kWindow, &keyframe_of_frame);
         const auto links = AddTrackedObjectsToBa(tracker, keyframe_of_frame, options, &problem);
         if (links.empty()) continue;
         const TrackedObject& o = tracker.objects().begin()->second;
@@ -449,6 +466,64 @@ TEST(ObjectBa, ASlidingWindowKeepsTheVelocityAtItsGauge) {
         error_of[keep]);
   }
   EXPECT_LT(error_of[true], 0.6 * error_of[false]);
+}
+
+// The camera's height estimate drifts by 5 mm per frame (the tracker gets
+// the drifting poses; the road plane under the car was fitted when the car
+// was created). Tracked with the BA after every frame on the last 10 frames:
+// held to its plane, the car can only match its image height by moving in
+// depth; with a soft freedom along the plane's normal
+// (ObjectBaOptions::soft_normal_step_sigma_m) the BA lifts it instead.
+TEST(ObjectBa, ASoftNormalKeepsACarUnderADriftingCameraAtItsDepth) {
+  const int kFrames = 30, kWindow = 10;
+  std::map<double, double> error_of;  // σ -> mean error under the camera at the end
+  for (double sigma : {0.01, 0.0}) {
+    double sum_error = 0.0;
+    const int kSeeds = 4;
+    for (int seed = 0; seed < kSeeds; ++seed) {
+      CarSequence seq(0.5, 90 + static_cast<uint64_t>(seed));
+      seq.set_camera_height_drift(0.005);
+      ObjectTracker tracker(seq.camera(), ObjectTrackerOptions{});
+      ObjectBaOptions options;
+      options.soft_normal_step_sigma_m = sigma;
+      Eigen::Vector3d centre_true = Eigen::Vector3d::Zero();
+      for (const Eigen::Vector3d& p : seq.points()) centre_true += p / seq.points().size();
+      Eigen::Vector3d centre_in_object = Eigen::Vector3d::Zero();
+      SeenFrames seen;
+      double error = 0.0;
+      for (int i = 0; i < kFrames; ++i) {
+        const ObjectFrameInput f = seq.Next(5, true);
+        seen.Add(f);
+        ASSERT_TRUE(tracker.Process(f).ok());
+        ASSERT_EQ(tracker.objects().size(), 1u);
+        std::map<int64_t, int> keyframe_of_frame;
+        DynamicBaProblem problem = seen.Window(seq.camera(), kWindow, &keyframe_of_frame);
+        const auto links = AddTrackedObjectsToBa(tracker, keyframe_of_frame, options, &problem);
+        if (!links.empty()) {
+          EXPECT_EQ(problem.objects[0].soft_normal_step_sigma_m, sigma);
+          const auto summary = SolveDynamicBa(&problem, DynamicBaOptions{});
+          ASSERT_TRUE(summary.ok() && summary->usable);
+          EXPECT_EQ(summary->num_normal_step_terms > 0, sigma > 0.0);
+          ApplyBaToTrackedObjects(problem, links, options, &tracker);
+        }
+        const SE3d camera_from_object =
+            seq.camera_from_world_given() * tracker.objects().begin()->second.world_from_object;
+        const Eigen::Vector3d truth =
+            seq.camera_from_world_true() * (seq.world_from_object() * centre_true);
+        if (i == 0) centre_in_object = camera_from_object.Inverse() * truth;
+        error = (camera_from_object * centre_in_object - truth).norm();
+      }
+      sum_error += error;
+    }
+    error_of[sigma] = sum_error / kSeeds;
+    std::printf(
+        "[camera height drifting 5 mm/frame, BA windows, soft normal sigma %.2f m] error "
+        "of the car under the camera after %d frames %.3f m\n",
+        sigma,
+        kFrames,
+        error_of[sigma]);
+  }
+  EXPECT_LT(error_of[0.01], 0.6 * error_of[0.0]);
 }
 
 }  // namespace

@@ -409,16 +409,15 @@ TEST(DynamicReprojectionCostTest, StereoAnalyticMatchesAutodiffAndFiniteDifferen
 }
 
 // ------------------------------------------- (d) constant velocity / acceleration
-// MotionPriorCost<kPoses> against its autodiff twin and finite differences:
-// random poses, twists, weights and projectors of every rank.
-template <int kPoses>
-void CheckMotionPrior(uint64_t seed) {
+// A step-combination cost against its autodiff twin and finite differences:
+// random poses, twists, weights and projectors of every rank. `make` gives
+// the (analytic, autodiff) pair for a projector.
+template <int kPoses, typename Make>
+void CheckStepCombination(uint64_t seed, Make make) {
   Random random(seed);
   SE3Manifold se3;
   for (int trial = 0; trial < kTrials; ++trial) {
     const Matrix6d projector = random.WorldProjector(trial % 7);
-    Vector6d sqrt_weights;
-    for (int i = 0; i < 6; ++i) sqrt_weights[i] = random.Uniform(0.5, 3.0);
     std::vector<std::vector<double>> params;
     std::vector<const ceres::Manifold*> manifolds;
     SE3d pose = random.Pose(3.0);
@@ -429,11 +428,21 @@ void CheckMotionPrior(uint64_t seed) {
       manifolds.insert(manifolds.end(), {nullptr, &se3});
       pose = SE3d::Exp(random.Twist(0.6)) * pose;
     }
-    MotionPriorCost<kPoses> analytic(projector, sqrt_weights);
-    std::unique_ptr<ceres::CostFunction> autodiff(
-        MotionPriorFunctor<kPoses>::Create(projector, sqrt_weights));
-    CheckCostPair(analytic, *autodiff, params, manifolds);
+    auto [analytic, autodiff] = make(projector, &random);
+    CheckCostPair(*analytic, *autodiff, params, manifolds);
   }
+}
+
+template <int kPoses>
+void CheckMotionPrior(uint64_t seed) {
+  CheckStepCombination<kPoses>(seed, [](const Matrix6d& projector, Random* random) {
+    Vector6d sqrt_weights;
+    for (int i = 0; i < 6; ++i) sqrt_weights[i] = random->Uniform(0.5, 3.0);
+    return std::make_pair(
+        std::unique_ptr<ceres::CostFunction>(new MotionPriorCost<kPoses>(projector, sqrt_weights)),
+        std::unique_ptr<ceres::CostFunction>(
+            MotionPriorFunctor<kPoses>::Create(projector, sqrt_weights)));
+  });
 }
 
 TEST(ConstantVelocityCostTest, AnalyticMatchesAutodiffAndFiniteDifferences) {
@@ -499,6 +508,41 @@ TEST(ConstantAccelerationCostTest, ZeroForConstantAccelerationMotionWhereConstan
   params[7] = q3_jerk.data();
   ASSERT_TRUE(cost.Evaluate(params, r.data(), nullptr));
   EXPECT_LT((r - acceleration).norm(), 1e-9);
+}
+
+// ------------------------------------------------------------ (e) normal step
+TEST(NormalStepCostTest, AnalyticMatchesAutodiffAndFiniteDifferences) {
+  CheckStepCombination<2>(45, [](const Matrix6d& projector, Random* random) {
+    const Eigen::Vector3d normal = random->Twist(1.0).head<3>().normalized();
+    const Eigen::Matrix<double, 1, 6> map = NormalStepMap(normal, random->Uniform(0.005, 0.05));
+    return std::make_pair(
+        std::unique_ptr<ceres::CostFunction>(new NormalStepCost(projector, map, {1.0})),
+        std::unique_ptr<ceres::CostFunction>(NormalStepFunctor::Create(projector, map, {1.0})));
+  });
+}
+
+TEST(NormalStepCostTest, ReadsTheStepAlongTheNormalOnly) {
+  // A car on a road tilted by 0.1 rad: a step along the road and a turn about
+  // the road's normal give 0; 2 cm along the normal gives 2 cm / σ.
+  const Eigen::Vector3d normal(0.0, -std::cos(0.1), std::sin(0.1));
+  const Eigen::Vector3d forward(0.0, std::sin(0.1), std::cos(0.1));
+  const SE3d p0(geometry::SO3d(), Eigen::Vector3d(2.0, 1.5, 20.0));
+  Vector6d in_plane;
+  in_plane << forward * 1.2, normal * 0.05;
+  // A rotation about the normal through the car keeps the translation in the plane.
+  const SE3d p1 = SE3d(geometry::SO3d(), p0.translation()) * SE3d::Exp(in_plane) *
+                  SE3d(geometry::SO3d(), -p0.translation()) * p0;
+  const SE3d p2 = SE3d(geometry::SO3d(), 0.02 * normal) * p1;
+  const std::vector<double> zero(6, 0.0);
+  const std::vector<double> q0 = PoseParams(p0), q1 = PoseParams(p1), q2 = PoseParams(p2);
+  NormalStepCost cost(Matrix6d::Identity(), NormalStepMap(normal, 0.01), {1.0});
+  double r = 0.0;
+  const double* in_plane_params[] = {zero.data(), q0.data(), zero.data(), q1.data()};
+  ASSERT_TRUE(cost.Evaluate(in_plane_params, &r, nullptr));
+  EXPECT_NEAR(r, 0.0, 1e-12);
+  const double* lifted_params[] = {zero.data(), q1.data(), zero.data(), q2.data()};
+  ASSERT_TRUE(cost.Evaluate(lifted_params, &r, nullptr));
+  EXPECT_NEAR(r, 2.0, 1e-12);
 }
 
 }  // namespace
