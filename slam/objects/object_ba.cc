@@ -4,6 +4,8 @@
 
 #include <unordered_map>
 
+#include "slam/joints/joint.h"
+
 namespace twist::objects {
 
 using geometry::SE3d;
@@ -44,9 +46,11 @@ std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
     ba.world_projector = object.joint.WorldProjector();
     if (options.soft_normal_step_sigma_m > 0.0 &&
         object.joint.type() == joints::JointType::kPlanar) {
-      // Π of the plane plus translation along its normal (the joint frame's z).
-      const geometry::Matrix6d ad = object.joint.world_from_joint().Adjoint();
-      ba.world_projector += ad * geometry::Vector6d::Unit(2).asDiagonal() * ad.inverse();
+      // Π of the plane plus translation along its normal: the joint frame's
+      // z, which a prismatic joint in the same frame allows.
+      ba.world_projector +=
+          joints::Joint(joints::JointType::kPrismatic, object.joint.world_from_joint())
+              .WorldProjector();
       ba.soft_normal = object.joint.world_from_joint().rotation().col(2);
       ba.soft_normal_step_sigma_m = options.soft_normal_step_sigma_m;
     }

@@ -8,7 +8,9 @@
 //   r = W^{1/2} Π Σ_k c_k s_k,   W = diag(w) (w given as its square roots):
 //   constant velocity (3 frames):     c = (−1, 1),      r = W^{1/2} Π (s_1 − s_0)
 //   constant acceleration (4 frames): c = (1, −2, 1),   r = W^{1/2} Π (s_2 − 2 s_1 + s_0)
-// Robust loss (Huber) is added by the caller.
+// Robust loss (Huber) is added by the caller. The code evaluates any
+// r = M Σ_k c_k s_k (StepCombinationCost/Functor, M a residual map); the
+// normal-step prior at the end of this file is the other instance.
 //
 // Parameter blocks, in this order, for each frame k:
 //   ξ̃_k (6), world_from_object_k (7, SE3Manifold).
