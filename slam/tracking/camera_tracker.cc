@@ -6,11 +6,10 @@
 #include <climits>
 #include <cmath>
 #include <cstring>
-#include <opencv2/calib3d.hpp>
-#include <opencv2/core/eigen.hpp>
 #include <set>
 
 #include "slam/features/feature_matcher.h"
+#include "slam/tracking/pnp.h"
 
 namespace twist::tracking {
 
@@ -133,6 +132,22 @@ TrackingState CameraTracker::Track(map::Frame* frame, map::Map* map) {
   const bool recent_reloc =
       frame->id - last_reloc_frame_id_ < options_.recent_relocalization_frames;
   if (ok) ok = TrackLocalMap(frame, map, relocalized || recent_reloc);
+  if (ok && path == TrackingPath::kMotionModel && options_.retry_weak_frames_from_reference &&
+      options_.research_inlier_ratio > 0.0) {
+    const int first = CountMapInliers(*frame);
+    if (first < options_.research_inlier_ratio * last_inliers_) {
+      map::Frame alternative = *frame;
+      const bool alt_ok = TrackReferenceKeyFrame(&alternative, map) > 0 &&
+                          TrackLocalMap(&alternative, map, recent_reloc);
+      const int second = alt_ok ? CountMapInliers(alternative) : 0;
+      VLOG(1) << "frame " << frame->id << ": weak frame (" << first
+              << " local-map inliers), from the reference keyframe " << second;
+      if (second > first) {
+        *frame = std::move(alternative);
+        path = TrackingPath::kReferenceKeyFrame;
+      }
+    }
+  }
   if (!ok && was_tracking && options_.relocalize_on_failure) {
     // Neither the motion model nor the reference keyframe held (the start of
     // a sharp turn): the frame is relocalized at once rather than lost.
@@ -370,53 +385,6 @@ int CameraTracker::TrackWithMotionModel(map::Frame* frame, map::Map* map) {
 }
 
 namespace {
-
-// PnP inside RANSAC (OpenCV; deterministic) with the tracker's settings:
-// 300 iterations, 3 px, confidence 0.99, AP3P on 4-point samples. Returns
-// false unless it converges to a finite pose with at least 10 inliers, 90 %
-// of them in front of the camera. EPnP on minimal samples was unstable: on
-// intersection seed 1 it returned a pose 16 m off with 183 "inliers" of 228
-// (a third of them behind the camera), where AP3P finds the true one.
-bool SolvePnpRansac(const geometry::StereoCamera& camera,
-                    const std::vector<cv::Point3f>& obj,
-                    const std::vector<cv::Point2f>& img,
-                    geometry::SE3d* camera_from_world,
-                    std::vector<int>* inliers) {
-  const cv::Mat K =
-      (cv::Mat_<double>(3, 3) << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1);
-  cv::Mat rvec, tvec;
-  if (!cv::solvePnPRansac(obj,
-                          img,
-                          K,
-                          cv::noArray(),
-                          rvec,
-                          tvec,
-                          false,
-                          300,
-                          3.0f,
-                          0.99,
-                          *inliers,
-                          cv::SOLVEPNP_AP3P) ||
-      inliers->size() < 10) {
-    return false;
-  }
-  cv::Mat Rcv;
-  cv::Rodrigues(rvec, Rcv);
-  Eigen::Matrix3d R;
-  Eigen::Vector3d t;
-  cv::cv2eigen(Rcv, R);
-  cv::cv2eigen(tvec, t);
-  if (!R.allFinite() || !t.allFinite()) return false;
-  const geometry::SE3d pose(Eigen::Quaterniond(R).normalized(), t);
-  size_t in_front = 0;
-  for (int k : *inliers) {
-    const Eigen::Vector3d p(obj[k].x, obj[k].y, obj[k].z);
-    in_front += (pose * p).z() > 0.0;
-  }
-  if (10 * in_front < 9 * inliers->size()) return false;
-  *camera_from_world = pose;
-  return true;
-}
 
 // PnP RANSAC (SolvePnpRansac) on the frame's current matches;
 // on success sets the pose and clears the outlier matches.

@@ -96,6 +96,52 @@ class TrackerTest : public ::testing::Test {
     return states;
   }
 
+  // Frame 8 after a sudden 4-degree turn (truth: world_from_camera), with
+  // decoys (repetitive texture) exactly at the constant-velocity predicted
+  // positions of `decoys` map points, carrying their descriptors.
+  map::Frame TurnWithDecoys(int decoys, geometry::SE3d* truth) {
+    const geometry::SE3d turn(geometry::SO3d::Exp(Eigen::Vector3d(0, 4.0 * M_PI / 180.0, 0)),
+                              Eigen::Vector3d::Zero());
+    *truth = TruePose(8) * turn;
+    auto features = std::make_shared<map::FrameFeatures>(
+        *Observe(world_, cam_, pyramid_, truth->Inverse(), 808));
+    const geometry::SE3d predicted = TruePose(8).Inverse();  // camera_from_world
+    int placed = 0;
+    std::vector<uint8_t> rows(features->descriptors.data,
+                              features->descriptors.data + features->descriptors.total());
+    for (size_t i = 0; i < world_.points.size() && placed < decoys; ++i) {
+      const Eigen::Vector3d pc = predicted * world_.points[i];
+      Eigen::Vector3d uvr;
+      if (pc.z() < 5.0 || pc.z() > 25.0 || !cam_.ProjectStereoChecked(pc, &uvr)) continue;
+      if (!cam_.InImage(uvr.head<2>(), 40.0)) continue;
+      // One decoy per pyramid level the world's keypoints use, so that the
+      // motion model's level window around the last observation admits one.
+      for (int level = 0; level < 4; ++level) {
+        features->keypoints.emplace_back(static_cast<float>(uvr.x()),
+                                         static_cast<float>(uvr.y()),
+                                         31.f * pyramid_.scale[level],
+                                         0.f,
+                                         50.f,
+                                         level);
+        features->u_right.push_back(static_cast<float>(uvr.z()));
+        features->depth.push_back(static_cast<float>(pc.z()));
+        rows.insert(rows.end(), world_.descriptors[i].begin(), world_.descriptors[i].end());
+      }
+      ++placed;
+    }
+    EXPECT_EQ(placed, decoys);
+    features->descriptors = cv::Mat(static_cast<int>(features->keypoints.size()), 32, CV_8UC1);
+    std::memcpy(features->descriptors.data, rows.data(), rows.size());
+    features->labels.clear();
+    features->is_static.clear();
+    map::Frame f;
+    f.id = 8;
+    f.timestamp_ns = 800'000'000LL;
+    f.features = map::FinalizeFeatures(std::move(*features), cam_.width, cam_.height);
+    f.ResetMatches();
+    return f;
+  }
+
   geometry::StereoCamera cam_;
   features::ScalePyramid pyramid_;
   testing::FeatureWorld world_;
@@ -142,48 +188,28 @@ TEST_F(TrackerTest, AWeakMotionModelPoseLosesToTheReferenceKeyFrame) {
   // of the reference keyframe (PnP RANSAC) must win over it.
   std::vector<geometry::SE3d> poses;
   Run(8, &poses);
-  const geometry::SE3d turn(geometry::SO3d::Exp(Eigen::Vector3d(0, 4.0 * M_PI / 180.0, 0)),
-                            Eigen::Vector3d::Zero());
-  const geometry::SE3d truth = TruePose(8) * turn;  // world_from_camera
-  auto features =
-      std::make_shared<map::FrameFeatures>(*Observe(world_, cam_, pyramid_, truth.Inverse(), 808));
-  const geometry::SE3d predicted = TruePose(8).Inverse();  // camera_from_world
-  int decoys = 0;
-  std::vector<uint8_t> rows(features->descriptors.data,
-                            features->descriptors.data + features->descriptors.total());
-  for (size_t i = 0; i < world_.points.size() && decoys < 40; ++i) {
-    const Eigen::Vector3d pc = predicted * world_.points[i];
-    Eigen::Vector3d uvr;
-    if (pc.z() < 5.0 || pc.z() > 25.0 || !cam_.ProjectStereoChecked(pc, &uvr)) continue;
-    if (!cam_.InImage(uvr.head<2>(), 40.0)) continue;
-    // One decoy per pyramid level the world's keypoints use, so that the
-    // motion model's level window around the last observation admits one.
-    for (int level = 0; level < 4; ++level) {
-      features->keypoints.emplace_back(static_cast<float>(uvr.x()),
-                                       static_cast<float>(uvr.y()),
-                                       31.f * pyramid_.scale[level],
-                                       0.f,
-                                       50.f,
-                                       level);
-      features->u_right.push_back(static_cast<float>(uvr.z()));
-      features->depth.push_back(static_cast<float>(pc.z()));
-      rows.insert(rows.end(), world_.descriptors[i].begin(), world_.descriptors[i].end());
-    }
-    ++decoys;
-  }
-  ASSERT_EQ(decoys, 40);
-  features->descriptors = cv::Mat(static_cast<int>(features->keypoints.size()), 32, CV_8UC1);
-  std::memcpy(features->descriptors.data, rows.data(), rows.size());
-  features->labels.clear();
-  features->is_static.clear();
-  map::Frame f;
-  f.id = 8;
-  f.timestamp_ns = 800'000'000LL;
-  f.features = map::FinalizeFeatures(std::move(*features), cam_.width, cam_.height);
-  f.ResetMatches();
+  geometry::SE3d truth;
+  map::Frame f = TurnWithDecoys(40, &truth);
   EXPECT_EQ(tracker_.Track(&f, &map_), TrackingState::kOk);
   EXPECT_EQ(tracker_.stats().path, TrackingPath::kReferenceKeyFrame);
   EXPECT_GT(tracker_.stats().num_inliers, 100);
+  EXPECT_LT(testing::RotationErrorDeg(f.camera_from_world.Inverse(), truth), 0.1);
+  EXPECT_LT(testing::TranslationError(f.camera_from_world.Inverse(), truth), 0.05);
+}
+
+TEST_F(TrackerTest, AWeakFrameAfterAConfidentMotionModelIsTrackedAgainFromTheReferenceKeyFrame) {
+  // The same turn with 120 decoys: the motion model is confident (more than
+  // confident_motion_inliers on the decoys), but the local map seen from its
+  // pose keeps the decoys only, far under the last frame's inliers, and the
+  // second search from that pose finds nothing more. The frame is tracked
+  // again from the reference keyframe by descriptor, which must win.
+  std::vector<geometry::SE3d> poses;
+  Run(8, &poses);
+  geometry::SE3d truth;
+  map::Frame f = TurnWithDecoys(120, &truth);
+  EXPECT_EQ(tracker_.Track(&f, &map_), TrackingState::kOk);
+  EXPECT_EQ(tracker_.stats().path, TrackingPath::kReferenceKeyFrame);
+  EXPECT_GT(tracker_.stats().num_inliers, 200);
   EXPECT_LT(testing::RotationErrorDeg(f.camera_from_world.Inverse(), truth), 0.1);
   EXPECT_LT(testing::TranslationError(f.camera_from_world.Inverse(), truth), 0.05);
 }
