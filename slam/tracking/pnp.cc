@@ -23,6 +23,20 @@ bool PoseFromRodrigues(const cv::Mat& rvec, const cv::Mat& tvec, geometry::SE3d*
   return true;
 }
 
+// The correspondences `indices` of obj / img.
+void Gather(const std::vector<cv::Point3f>& obj,
+            const std::vector<cv::Point2f>& img,
+            const std::vector<int>& indices,
+            std::vector<cv::Point3f>* obj_out,
+            std::vector<cv::Point2f>* img_out) {
+  obj_out->clear();
+  img_out->clear();
+  for (int k : indices) {
+    obj_out->push_back(obj[k]);
+    img_out->push_back(img[k]);
+  }
+}
+
 }  // namespace
 
 std::vector<int> PnpConsistent(const geometry::StereoCamera& camera,
@@ -84,10 +98,7 @@ bool SolvePnpRansac(const geometry::StereoCamera& camera,
   }
   std::vector<cv::Point3f> obj_used;
   std::vector<cv::Point2f> img_used;
-  for (int k : candidates) {
-    obj_used.push_back(obj[k]);
-    img_used.push_back(img[k]);
-  }
+  Gather(obj, img, candidates, &obj_used, &img_used);
   const cv::Mat k =
       (cv::Mat_<double>(3, 3) << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1);
   cv::Mat rvec, tvec;
@@ -117,16 +128,12 @@ bool SolvePnpRansac(const geometry::StereoCamera& camera,
   if (static_cast<double>(consistent.size()) < needed) {
     // OpenCV's refinement of RANSAC's model on its inliers moved away from
     // it: solve again on those inliers with SQPnP and keep the better fit.
-    std::vector<cv::Point3f> obj_in;
-    std::vector<cv::Point2f> img_in;
-    for (int i : *inliers) {
-      obj_in.push_back(obj[i]);
-      img_in.push_back(img[i]);
-    }
+    Gather(obj, img, *inliers, &obj_used, &img_used);
     cv::Mat rvec2, tvec2;
     geometry::SE3d pose2;
     std::vector<int> consistent2;
-    if (cv::solvePnP(obj_in, img_in, k, cv::noArray(), rvec2, tvec2, false, cv::SOLVEPNP_SQPNP) &&
+    if (cv::solvePnP(
+            obj_used, img_used, k, cv::noArray(), rvec2, tvec2, false, cv::SOLVEPNP_SQPNP) &&
         PoseFromRodrigues(rvec2, tvec2, &pose2)) {
       consistent2 = PnpConsistent(camera, obj, img, pose2, *inliers, options.threshold_px);
     }
