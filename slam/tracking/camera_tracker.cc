@@ -146,6 +146,10 @@ TrackingState CameraTracker::Track(map::Frame* frame, map::Map* map) {
         *frame = std::move(alternative);
         path = TrackingPath::kReferenceKeyFrame;
       }
+      // TrackLocalMap sets the tracker's reference keyframe from its pass:
+      // it must be the kept pass's. (Both passes counted their points as
+      // visible/found, which only feeds the points' culling ratio.)
+      reference_kf_id_ = frame->reference_kf_id;
     }
   }
   if (!ok && was_tracking && options_.relocalize_on_failure) {
