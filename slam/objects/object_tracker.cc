@@ -187,6 +187,10 @@ absl::Status ObjectTrackerOptions::Validate() const {
         "object tracker needs acceleration_sigma_mps2 >= 0, angular_acceleration_sigma_radps2 > 0, "
         "max_step_sigma_px > 0, 0 < filter_gate_confidence < 1 and max_coast_frames >= 0");
   }
+  if (!(manoeuvre_angular_acceleration_sigma_radps2 >= 0.0)) {
+    return absl::InvalidArgumentError(
+        "object tracker needs manoeuvre_angular_acceleration_sigma_radps2 >= 0");
+  }
   if (std::isnan(turn_rate_sigma_radps)) {
     return absl::InvalidArgumentError("object tracker turn_rate_sigma_radps must be a number");
   }
@@ -499,12 +503,20 @@ bool ObjectTracker::BeyondTrackingRange(const SE3d& camera_from_object) const {
 }
 
 Matrix6d ObjectTracker::ProcessNoise(const TrackedObject& o, double dt) const {
+  return ProcessNoise(
+      o, dt, options_.acceleration_sigma_mps2, options_.angular_acceleration_sigma_radps2);
+}
+
+Matrix6d ObjectTracker::ProcessNoise(const TrackedObject& o,
+                                     double dt,
+                                     double acceleration_sigma_mps2,
+                                     double angular_acceleration_sigma_radps2) const {
   // Random acceleration over a step of dt, as a change of the per-step twist
   // at the object's origin c: δv = a·dt², δω = α·dt²; moved to the world
   // origin by v = v_c + c × ω and projected onto the joint's twists.
   const double dt2 = dt * dt;
-  const double qv = std::pow(options_.acceleration_sigma_mps2 * dt2, 2);
-  const double qw = std::pow(options_.angular_acceleration_sigma_radps2 * dt2, 2);
+  const double qv = std::pow(acceleration_sigma_mps2 * dt2, 2);
+  const double qw = std::pow(angular_acceleration_sigma_radps2 * dt2, 2);
   Matrix6d q = Matrix6d::Zero();
   q.topLeftCorner<3, 3>() = qv * Eigen::Matrix3d::Identity();
   q.bottomRightCorner<3, 3>() = qw * Eigen::Matrix3d::Identity();
@@ -796,7 +808,16 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   if (est->num_inliers < options_.min_step_inliers) return coast();
   if (filtered) {
     if (o->twist_covariance_valid) predicted_covariance = PredictedCovariance(ctx, *o);
-    if (!FilterStep(*o, initial, predicted_covariance, &*est)) return coast();
+    if (!FilterStep(*o, initial, predicted_covariance, &*est)) {
+      // A turn's onset (manoeuvre_angular_acceleration_sigma_radps2). A step
+      // that fails this gate too coasts with the wider covariance, so that
+      // the next step is gated as a possible turn as well.
+      const double manoeuvre = options_.manoeuvre_angular_acceleration_sigma_radps2;
+      if (!(manoeuvre > 0.0) || !o->twist_covariance_valid) return coast();
+      predicted_covariance += ProcessNoise(*o, ctx.dt, 0.0, manoeuvre);
+      if (!FilterStep(*o, initial, predicted_covariance, &*est)) return coast();
+      ++stats_.manoeuvres;
+    }
   }
 
   if (options_.stationary_after_frames > 0 && ctx.dt > 0.0) {

@@ -348,6 +348,17 @@ struct ObjectTrackerOptions {
   // own test, below). acceleration_sigma_mps2 = 0: off.
   double acceleration_sigma_mps2 = 4.0;
   double angular_acceleration_sigma_radps2 = 0.5;
+  // A car entering a turn (docs/objects.md §32). Its rate of turn jumps
+  // within a frame or two (the generator's turning cars: 0 -> 0.7 rad/s, an
+  // angular acceleration of ~4 rad/s^2, 7 sigma of the process noise above),
+  // so its first turning steps failed the gate and coasted straight, and the
+  // track kept the missed ~10 deg of heading for good. A step that fails the
+  // gate is tested again against the prediction whose rate of turn may also
+  // change by this angular acceleration (added to the process noise, about
+  // the object's origin: it moves no point of the car sideways); it is a
+  // manoeuvre and is fused with that covariance when it passes. A step that
+  // shifts the car sideways or along its way still coasts. 0: off.
+  double manoeuvre_angular_acceleration_sigma_radps2 = 4.0;
   // The twist of an object with its points' own stereo errors (errors in
   // variables, TwistObservation::point_sigma_in_object; docs/objects.md §27):
   // each point's depth along its creation ray is estimated with the twist.
@@ -394,7 +405,8 @@ struct ObjectTrackerStats {
   int continued = 0;  // lost objects continued on a new structure
   int lost = 0;
   int removed = 0;
-  int rejected = 0;  // steps that failed the filter's gate (coasted or lost)
+  int rejected = 0;    // steps that failed the filter's gate (coasted or lost)
+  int manoeuvres = 0;  // steps that passed the gate only as a change of the rate of turn
 };
 
 class ObjectTracker {
@@ -457,10 +469,14 @@ class ObjectTracker {
   // over `seconds`; empty for other joints.
   TwistPrior TurnPrior(const joints::Joint& joint, double seconds) const;
   // The filter's process noise over one step of `dt` seconds: a random
-  // acceleration (acceleration_sigma_mps2, angular_acceleration_sigma_radps2)
-  // at the object's origin, as a change of its per-step world twist projected
-  // onto its joint.
+  // acceleration (acceleration_sigma_mps2, angular_acceleration_sigma_radps2,
+  // or the given sigmas) at the object's origin, as a change of its per-step
+  // world twist projected onto its joint.
   geometry::Matrix6d ProcessNoise(const TrackedObject& object, double dt) const;
+  geometry::Matrix6d ProcessNoise(const TrackedObject& object,
+                                  double dt,
+                                  double acceleration_sigma_mps2,
+                                  double angular_acceleration_sigma_radps2) const;
   // Stereo depth noise z² σ_d s / (f b) of a point at `depth`, s the scale of
   // its keypoint's pyramid level (1: level 0).
   double DepthNoise(double depth, double level_scale) const;
