@@ -236,10 +236,11 @@ struct ObjectTrackerOptions {
   // car and the background for most keypoints of a car 20-30 m away, which
   // biases their disparity (docs/objects.md §11). A keypoint whose masked
   // measurement fails is used as mono (no point created from it).
-  // Off by default: the masked depths are 3-4x more accurate against the
-  // renderer (objects_masked_stereo_test), but over 3 seeds x 4 scenarios the
-  // engine's object rotation errors grew with them (docs/objects.md §11).
-  bool masked_stereo = false;
+  // The masked depths are 3-4x more accurate against the renderer
+  // (objects_masked_stereo_test). On by default since the manoeuvre gate
+  // (docs/objects.md §32): the object rotation errors that kept it off
+  // (§11, §31) were turns whose onset the filter refused.
+  bool masked_stereo = true;
   // When the masked measurement fails (too few mask pixels in the window,
   // no texture, weak correlation): true keeps the matcher's depth, false
   // uses the keypoint as mono.
