@@ -1210,6 +1210,12 @@ TEST(ObjectTracker, RejectsMalformedInput) {
   EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
   options.turn_rate_sigma_radps = 0.1;
   EXPECT_TRUE(options.Validate().ok());
+  for (double bad : {-1.0, std::nan("")}) {
+    options.manoeuvre_angular_acceleration_sigma_radps2 = bad;
+    EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
+  }
+  options.manoeuvre_angular_acceleration_sigma_radps2 = 0.0;  // off
+  EXPECT_TRUE(options.Validate().ok());
 }
 
 }  // namespace
