@@ -187,6 +187,10 @@ absl::Status ObjectTrackerOptions::Validate() const {
         "object tracker needs acceleration_sigma_mps2 >= 0, angular_acceleration_sigma_radps2 > 0, "
         "max_step_sigma_px > 0, 0 < filter_gate_confidence < 1 and max_coast_frames >= 0");
   }
+  if (!(young_turn_rate_sigma_radps >= 0.0) || young_turn_prior_poses < 0) {
+    return absl::InvalidArgumentError(
+        "object tracker needs young_turn_rate_sigma_radps >= 0 and young_turn_prior_poses >= 0");
+  }
   if (!(manoeuvre_angular_acceleration_sigma_radps2 >= 0.0)) {
     return absl::InvalidArgumentError(
         "object tracker needs manoeuvre_angular_acceleration_sigma_radps2 >= 0");
@@ -562,8 +566,13 @@ bool ObjectTracker::FilterStep(const TrackedObject& o,
 }
 
 TwistPrior ObjectTracker::TurnPrior(const joints::Joint& joint, double seconds) const {
+  return TurnPrior(joint, seconds, options_.turn_rate_sigma_radps);
+}
+
+TwistPrior ObjectTracker::TurnPrior(const joints::Joint& joint,
+                                    double seconds,
+                                    double sigma) const {
   TwistPrior prior;
-  const double sigma = options_.turn_rate_sigma_radps;
   if (!(sigma > 0.0) || !(seconds > 0.0) || joint.type() != joints::JointType::kPlanar) {
     return prior;
   }
@@ -677,7 +686,10 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   const Matrix6d projector = o->joint.WorldProjector();
   // The constrained twist from the current observations, when there are
   // enough of them and the solver converged.
-  const TwistPrior turn_prior = TurnPrior(o->joint, ctx.dt);
+  const bool young = static_cast<int>(o->history.size()) < options_.young_turn_prior_poses;
+  const TwistPrior turn_prior =
+      young ? TurnPrior(o->joint, ctx.dt, options_.young_turn_rate_sigma_radps)
+            : TurnPrior(o->joint, ctx.dt);
   auto estimate = [&](const Vector6d& start) -> std::optional<TwistEstimate> {
     if (static_cast<int>(obs.size()) < options_.min_points_to_track) return std::nullopt;
     absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_,

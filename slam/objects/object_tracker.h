@@ -376,6 +376,13 @@ struct ObjectTrackerOptions {
   // turns: a car turning at 0.2 rad/s is followed with 0.47 m of error over
   // 20 frames instead of 0.15 m. <= 0: no prior (default).
   double turn_rate_sigma_radps = 0.0;
+  // The same prior, with this sigma, on the steps of a young object (fewer
+  // than young_turn_prior_poses poses), and none after that unless
+  // turn_rate_sigma_radps is set (docs/objects.md §32). A new car seen from
+  // behind barely shows its yaw, and its first free steps could spin it by
+  // ~30 deg; the constant-velocity filter then predicted the spin. 0: off.
+  double young_turn_rate_sigma_radps = 0.1;
+  int young_turn_prior_poses = 3;
   double filter_gate_confidence = 0.999;
   double max_step_sigma_px = 4.0;
   int max_coast_frames = 3;
@@ -469,6 +476,7 @@ class ObjectTracker {
   // The zero-turn prior (turn_rate_sigma_radps) of a planar object's motion
   // over `seconds`; empty for other joints.
   TwistPrior TurnPrior(const joints::Joint& joint, double seconds) const;
+  TwistPrior TurnPrior(const joints::Joint& joint, double seconds, double sigma_radps) const;
   // The filter's process noise over one step of `dt` seconds: a random
   // acceleration (acceleration_sigma_mps2, angular_acceleration_sigma_radps2,
   // or the given sigmas) at the object's origin, as a change of its per-step
