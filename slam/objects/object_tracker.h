@@ -473,8 +473,8 @@ class ObjectTracker {
                   const geometry::Vector6d& predicted,
                   const geometry::Matrix6d& predicted_covariance,
                   TwistEstimate* estimate) const;
-  // The zero-turn prior (turn_rate_sigma_radps) of a planar object's motion
-  // over `seconds`; empty for other joints.
+  // The zero-turn prior (turn_rate_sigma_radps, or sigma_radps) of a planar
+  // object's motion over `seconds`; empty for other joints or a sigma <= 0.
   TwistPrior TurnPrior(const joints::Joint& joint, double seconds) const;
   TwistPrior TurnPrior(const joints::Joint& joint, double seconds, double sigma_radps) const;
   // The filter's process noise over one step of `dt` seconds: a random

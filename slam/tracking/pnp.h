@@ -55,14 +55,17 @@ std::vector<int> PnpCandidates(const std::vector<cv::Point3f>& obj,
 // a near-zero parallax); they fit any translation, and OpenCV's closed-form
 // solvers and the refinement of RANSAC's model on its inliers are pulled
 // off by them. On intersection seed 6, frame 65 (the start of a turn, with
-// masked object stereo on), 5 of 257 descriptor matches were 1-529 km
-// from the world origin, the others within 300 m: RANSAC found 218 inliers, and the pose returned
-// fitted 3 of them (263 m from the last frame's). Without those 5 points, 222 fit. The returned
-// pose is also checked against RANSAC's inliers: when fewer than min_consistent_share of them lie
-// within threshold_px of their keypoints (OpenCV's refinement moved off RANSAC's model; KITTI 06
-// frame 1: 100 of 206), the pose is solved again on those inliers with SQPnP (179 of 206 there),
-// the better fit is kept, *inliers becomes the ones it fits, and if it still fits fewer than that
-// share the PnP fails.
+// masked object stereo on), 5 of 257 descriptor matches were 1-529 km from
+// the world origin, the others within 300 m: RANSAC found 218 inliers, and
+// the pose returned fitted 3 of them (263 m from the last frame's). Without
+// those 5 points, 222 fit.
+//
+// The returned pose is also checked against RANSAC's inliers: when fewer
+// than min_consistent_share of them lie within threshold_px of their
+// keypoints (OpenCV's refinement moved off RANSAC's model; KITTI 06 frame
+// 1: 100 of 206), the pose is solved again on those inliers with SQPnP (179
+// of 206 there), the better fit is kept, *inliers becomes the ones it fits,
+// and if it still fits fewer than that share the PnP fails.
 //
 // Returns false unless the pose is finite, has min_inliers inliers and
 // min_in_front_percent of them in front of the camera. *inliers indexes
