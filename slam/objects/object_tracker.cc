@@ -191,6 +191,10 @@ absl::Status ObjectTrackerOptions::Validate() const {
     return absl::InvalidArgumentError(
         "object tracker needs young_turn_rate_sigma_radps >= 0 and young_turn_prior_poses >= 0");
   }
+  if (!(tracked_stereo_search_fraction >= 0.0 && tracked_stereo_search_fraction <= 1.0)) {
+    return absl::InvalidArgumentError(
+        "object tracker needs tracked_stereo_search_fraction in [0, 1]");
+  }
   if (!(manoeuvre_angular_acceleration_sigma_radps2 >= 0.0)) {
     return absl::InvalidArgumentError(
         "object tracker needs manoeuvre_angular_acceleration_sigma_radps2 >= 0");
@@ -231,6 +235,29 @@ double ObjectTracker::ObjectStereo(const FrameContext& ctx,
                                                                  : -1.0;
   cache.emplace(k, result);
   return result;
+}
+
+double ObjectTracker::TrackedPointStereo(const FrameContext& ctx,
+                                         const ObjectDetectionInput& det,
+                                         const Eigen::Vector2d& uv,
+                                         double predicted_depth) const {
+  if (!options_.measure_tracked_stereo || !options_.masked_stereo || ctx.frame.right.empty() ||
+      det.mask.empty() || !(predicted_depth > 0.1)) {
+    return -1.0;
+  }
+  const double predicted = camera_.bf() / predicted_depth;
+  MaskedStereoOptions search = options_.masked_stereo_options;
+  search.search_px =
+      std::max(search.search_px,
+               static_cast<int>(std::ceil(options_.tracked_stereo_search_fraction * predicted)));
+  const std::optional<double> d = MaskedDisparity(ctx.frame.left,
+                                                  ctx.frame.right,
+                                                  det.mask,
+                                                  uv,
+                                                  predicted,
+                                                  options_.masked_stereo_default_half_px,
+                                                  search);
+  return d && *d > 0.0 ? uv.x() - *d : -1.0;
 }
 
 TrackedObject* ObjectTracker::mutable_object(int64_t id) {
@@ -665,7 +692,8 @@ bool ObjectTracker::Track(const FrameContext& ctx,
     obs_point.push_back(point);
   };
   // Right-image u of the stereo keypoint under a flow position (descriptor
-  // checked when both sides have one), shifted by the sub-pixel offset.
+  // checked when both sides have one), shifted by the sub-pixel offset;
+  // without one, measured on the images (measure_tracked_stereo).
   auto stereo_at = [&](const Eigen::Vector2d& uv, size_t point) {
     const cv::Mat& desc = o->points[point].descriptor;
     const int kp = ctx.grid.Nearest(uv, options_.stereo_lookup_px, [&](int i) {
@@ -673,10 +701,10 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       if (desc.empty() || f.keypoints.descriptors.empty()) return true;
       return HammingDistance(desc, f.keypoints.descriptors.row(i)) <= options_.search.max_hamming;
     });
-    if (kp < 0) return -1.0;
-    const double u_right = ObjectStereo(ctx, det, static_cast<size_t>(kp));
-    if (u_right < 0.0) return -1.0;
-    return u_right + (uv.x() - f.keypoints.uv[static_cast<size_t>(kp)].x());
+    const double u_right = kp < 0 ? -1.0 : ObjectStereo(ctx, det, static_cast<size_t>(kp));
+    if (u_right >= 0.0) return u_right + (uv.x() - f.keypoints.uv[static_cast<size_t>(kp)].x());
+    return TrackedPointStereo(
+        ctx, det, uv, (camera_from_predicted * o->points[point].point_in_object).z());
   };
   for (size_t j = 0; j < flow_idx.size(); ++j) {
     const auto& q = (*flowed)[j];

@@ -248,7 +248,19 @@ struct ObjectTrackerOptions {
   double masked_stereo_default_half_px = 5.5;
   MaskedStereoOptions masked_stereo_options;
   double stereo_lookup_px = 1.5;  // flow position -> stereo keypoint
-  int max_frames_lost = 10;       // re-identification window, then removed
+  // A point measured at a position with no stereo keypoint near it (flow,
+  // patch search) gets its disparity measured on the images there
+  // (MaskedDisparity on the detection's mask, needs masked_stereo and the
+  // right image), searched around the disparity its predicted depth gives,
+  // ± max(masked_stereo_options.search_px, tracked_stereo_search_fraction of
+  // it). Without it most of a step's observations were mono (16-42 % had
+  // stereo on the generated scenes), so a step's depth rested on the image
+  // size of a structure whose points are replaced as the car recedes, and it
+  // drifted: an overtaking car was 4 % too far or too near after 30 m
+  // (docs/objects.md §33).
+  bool measure_tracked_stereo = true;
+  double tracked_stereo_search_fraction = 0.05;
+  int max_frames_lost = 10;  // re-identification window, then removed
   double reid_min_score = 0.3;
   // Whether an object tracked up to the last frame whose cluster has no
   // detection in this one may re-acquire an unmatched detection in the same
@@ -530,6 +542,13 @@ class ObjectTracker {
   // u_right of keypoint k for the object of `det` (ObjectTrackerOptions::
   // masked_stereo); < 0: no usable stereo depth.
   double ObjectStereo(const FrameContext& ctx, const ObjectDetectionInput& det, size_t k) const;
+  // u_right measured on the images at uv, a point of the object of `det`
+  // expected at predicted_depth (ObjectTrackerOptions::
+  // measure_tracked_stereo); < 0: not measured.
+  double TrackedPointStereo(const FrameContext& ctx,
+                            const ObjectDetectionInput& det,
+                            const Eigen::Vector2d& uv,
+                            double predicted_depth) const;
 
   geometry::StereoCamera camera_;
   ObjectTrackerOptions options_;

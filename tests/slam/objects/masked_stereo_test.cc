@@ -1,7 +1,8 @@
 // MaskedDisparity (object depths from the mask only): a synthetic foreground
 // patch over a background at another disparity, and the generator's rendered
 // cars against the renderer's exact depth (the regression for issue #5's
-// depth error of the object point clouds).
+// depth error of the object point clouds); and the tracker measuring the
+// disparity of its tracked points on the images (measure_tracked_stereo).
 #include "slam/objects/masked_stereo.h"
 
 #include <gtest/gtest.h>
@@ -9,10 +10,13 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <opencv2/imgproc.hpp>
 #include <vector>
 
 #include "slam/features/orb_extractor.h"
 #include "slam/features/stereo_matcher.h"
+#include "slam/objects/joint_frames.h"
+#include "slam/objects/object_tracker.h"
 #include "slam/semantic/panoptic.h"
 #include "slam/sim/depth_truth.h"
 #include "slam/sim/renderer.h"
@@ -23,7 +27,8 @@ namespace {
 
 // Smooth band-limited texture (sum of sinusoids), sampled at continuous x.
 double Texture(double x, double y, double phase) {
-  return 128.0 + 40.0 * std::sin(0.9 * x + 0.3 * y + phase) + 30.0 * std::sin(0.37 * x - 0.8 * y + 2 * phase) +
+  return 128.0 + 40.0 * std::sin(0.9 * x + 0.3 * y + phase) +
+         30.0 * std::sin(0.37 * x - 0.8 * y + 2 * phase) +
          25.0 * std::sin(1.7 * x + 1.1 * y + 3 * phase);
 }
 
@@ -74,7 +79,8 @@ TEST(MaskedStereo, ForegroundDisparityWhenTheWindowStraddlesTheBackground) {
     ASSERT_TRUE(masked.has_value()) << inside;
     EXPECT_NEAR(*masked, d_fg, 0.1) << inside;
     const double plain = UnmaskedDisparity(s, uv, 11.0, 12);
-    std::printf("  %d px inside: masked %.3f, unmasked %.3f (true %.1f)\n", inside, *masked, plain, d_fg);
+    std::printf(
+        "  %d px inside: masked %.3f, unmasked %.3f (true %.1f)\n", inside, *masked, plain, d_fg);
   }
   // Deep inside, masked and unmasked agree with the truth.
   const auto centre = MaskedDisparity(s.left, s.right, s.mask, Eigen::Vector2d(110, 60), 12.0, 8.0);
@@ -96,7 +102,8 @@ TEST(MaskedStereo, RejectsWhatItCannotMeasure) {
   // Untextured object.
   Synthetic flat = s;
   flat.left.setTo(100, flat.mask);
-  EXPECT_FALSE(MaskedDisparity(flat.left, flat.right, flat.mask, Eigen::Vector2d(110, 60), 12.0, 8.0));
+  EXPECT_FALSE(
+      MaskedDisparity(flat.left, flat.right, flat.mask, Eigen::Vector2d(110, 60), 12.0, 8.0));
   // Wrong types.
   cv::Mat wrong;
   s.left.convertTo(wrong, CV_32F);
@@ -147,11 +154,13 @@ TEST(MaskedStereo, RenderedCarsAgainstExactDepth) {
       if (label / 1000 != sim::kClassCar) continue;
       const double z_true = r.depth.at<float>(y, x);
       if (!(z_true >= 15.0 && z_true <= 35.0)) continue;
-      const cv::Mat mask = semantic::SegmentMask(r.panoptic, semantic::PanopticLabel{label / 1000, label % 1000});
+      const cv::Mat mask =
+          semantic::SegmentMask(r.panoptic, semantic::PanopticLabel{label / 1000, label % 1000});
       const double half = (so.sad_half_window + 0.5) * orb.pyramid().scale[kl[k].octave];
       const double d_raw = kl[k].pt.x - st.u_right[k];
       raw.push_back(cam.bf() / d_raw / z_true - 1.0);
-      const auto d = MaskedDisparity(r.left, r.right, mask, Eigen::Vector2d(kl[k].pt.x, kl[k].pt.y), d_raw, half);
+      const auto d = MaskedDisparity(
+          r.left, r.right, mask, Eigen::Vector2d(kl[k].pt.x, kl[k].pt.y), d_raw, half);
       if (!d) {
         ++failed;
         continue;
@@ -161,13 +170,117 @@ TEST(MaskedStereo, RenderedCarsAgainstExactDepth) {
   }
   ASSERT_GE(raw.size(), 100u);
   ASSERT_GE(masked.size(), raw.size() / 2);
-  std::printf("  %zu car keypoints at 15-35 m: matcher depth median %+.2f %%, MAD %.2f %%; "
-              "masked (%zu, %d failed) median %+.2f %%, MAD %.2f %%\n",
-              raw.size(), 100 * Median(raw), 100 * Mad(raw), masked.size(), failed,
-              100 * Median(masked), 100 * Mad(masked));
+  std::printf(
+      "  %zu car keypoints at 15-35 m: matcher depth median %+.2f %%, MAD %.2f %%; "
+      "masked (%zu, %d failed) median %+.2f %%, MAD %.2f %%\n",
+      raw.size(),
+      100 * Median(raw),
+      100 * Mad(raw),
+      masked.size(),
+      failed,
+      100 * Median(masked),
+      100 * Mad(masked));
   EXPECT_LT(std::abs(Median(masked)), 0.005);
   EXPECT_LT(Mad(masked), 0.016);
   EXPECT_LT(Mad(masked), 0.7 * Mad(raw));
+}
+
+// ObjectTrackerOptions::measure_tracked_stereo: the leading car of the
+// generator's `follow_braking` scene (frames 40-49, 10-13 m ahead, braking)
+// tracked on the rendered images with the engine's keypoints and stereo
+// matches. Each observation that carries stereo is checked against the
+// rendered depth under it. Measured: without the option 165 of 251
+// observations have stereo (MAD 0.44 %); with it 229 of 254 (median +0.06 %,
+// MAD 0.44 %).
+struct TrackedStereo {
+  int observations = 0;
+  std::vector<double> depth_error;  // relative, of those with stereo
+};
+
+TrackedStereo TrackTheLeadingCar(bool measure_tracked_stereo) {
+  auto scenario = sim::MakeScenario("follow_braking", 1, 100);
+  EXPECT_TRUE(scenario.ok());
+  const geometry::StereoCamera& cam = scenario->camera;
+  sim::RenderOptions ro;
+  ro.gray = true;
+  const sim::Renderer renderer(cam, ro);
+  const features::OrbExtractor orb(features::OrbOptions{});
+  ObjectTrackerOptions options;
+  options.measure_tracked_stereo = measure_tracked_stereo;
+  ObjectTracker tracker(cam, options);
+  TrackedStereo out;
+  const int first = 40;  // the leading car 10-13 m ahead, braking
+  for (int frame = first; frame < first + 10; ++frame) {
+    const sim::StereoRender r = sim::RenderScenarioFrame(renderer, *scenario, frame);
+    const semantic::PanopticLabel car{sim::kClassCar, 1};
+    const cv::Mat mask = semantic::SegmentMask(r.panoptic, car);
+    std::vector<cv::KeyPoint> kl, kr;
+    cv::Mat dl, dr;
+    std::vector<cv::Mat> ll, lr;
+    // Keypoints favoured inside the car's mask, as the engine does.
+    cv::Mat favour(r.left.size(), CV_8UC1, cv::Scalar(1));
+    favour.setTo(200, mask);
+    orb.Extract(r.left, favour, &kl, &dl, &ll);
+    orb.Extract(r.right, cv::Mat(), &kr, &dr, &lr);
+    const features::StereoMatchResult st = features::MatchStereo(
+        cam, orb.pyramid(), kl, dl, kr, dr, ll, lr, features::StereoMatchOptions{});
+    ObjectFrameInput f;
+    f.frame_index = frame;
+    f.timestamp_ns = static_cast<int64_t>(std::llround(scenario->TimeOf(frame) * 1e9));
+    const geometry::SE3d world_from_camera = scenario->WorldFromCamera(frame);
+    f.camera_from_world = world_from_camera.Inverse();
+    f.left = r.left;
+    f.right = r.right;
+    f.keypoints.descriptors = dl;
+    for (size_t k = 0; k < kl.size(); ++k) {
+      f.keypoints.uv.emplace_back(kl[k].pt.x, kl[k].pt.y);
+      f.keypoints.u_right.push_back(st.u_right[k]);
+    }
+    ObjectDetectionInput det;
+    det.cluster_id = 1;
+    det.class_id = sim::kClassCar;
+    det.instance_id = 1;
+    det.box = cv::Rect2d(cv::boundingRect(mask));
+    det.mask = mask;
+    JointSpec spec;
+    spec.anchor = world_from_camera.translation();
+    det.joint = ResolveJointOrFree(spec);  // free: the test is about depth
+    f.detections.push_back(det);
+    const auto results = tracker.Process(f);
+    EXPECT_TRUE(results.ok());
+    if (frame == first || tracker.objects().empty()) continue;
+    const TrackedObject& o = tracker.objects().begin()->second;
+    if (o.history.empty() || o.history.back().frame_index != frame) continue;
+    for (const ObjectPointObservation& obs : o.history.back().observations) {
+      ++out.observations;
+      if (obs.u_right < 0.0) continue;
+      const float z_true = r.depth.at<float>(cvRound(obs.uv.y()), cvRound(obs.uv.x()));
+      out.depth_error.push_back(cam.bf() / (obs.uv.x() - obs.u_right) / z_true - 1.0);
+    }
+  }
+  return out;
+}
+
+TEST(MaskedStereo, TrackedPointsAreMeasuredWhereNoStereoKeypointIs) {
+  const TrackedStereo off = TrackTheLeadingCar(false);
+  const TrackedStereo on = TrackTheLeadingCar(true);
+  ASSERT_GE(off.observations, 100);
+  ASSERT_GE(on.observations, 100);
+  // Most of the observations without stereo get it, as exact as the others.
+  EXPECT_LT(off.depth_error.size(), static_cast<size_t>(off.observations) * 3 / 4);
+  EXPECT_GT(on.depth_error.size(), static_cast<size_t>(on.observations) * 17 / 20);
+
+  std::printf(
+      "  observations with stereo: %zu of %d without measure_tracked_stereo, %zu of %d "
+      "with it (depth median %+.2f %%, MAD %.2f %%)\n",
+      off.depth_error.size(),
+      off.observations,
+      on.depth_error.size(),
+      on.observations,
+      100 * Median(on.depth_error),
+      100 * Mad(on.depth_error));
+  EXPECT_LT(std::abs(Median(on.depth_error)), 0.005);
+  EXPECT_LT(Mad(on.depth_error), 0.01);
 }
 
 }  // namespace

@@ -1270,6 +1270,13 @@ TEST(ObjectTracker, RejectsMalformedInput) {
   options.young_turn_rate_sigma_radps = 0.1;
   options.young_turn_prior_poses = -1;
   EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
+  options.young_turn_prior_poses = 3;
+  for (double bad : {-0.1, 1.5, std::nan("")}) {
+    options.tracked_stereo_search_fraction = bad;
+    EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
+  }
+  options.tracked_stereo_search_fraction = 0.0;  // masked_stereo_options.search_px only
+  EXPECT_TRUE(options.Validate().ok());
 }
 
 }  // namespace
