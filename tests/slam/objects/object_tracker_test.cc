@@ -16,6 +16,15 @@ namespace {
 
 using namespace twist::objects::testing;  // NOLINT
 
+// Options for the exact-truth tests whose car turns from its first frame:
+// without the zero-turn prior on an object's first steps
+// (young_turn_rate_sigma_radps), whose bias those tests would see.
+ObjectTrackerOptions OptionsForACarTurningFromItsFirstFrame() {
+  ObjectTrackerOptions options;
+  options.young_turn_rate_sigma_radps = 0.0;
+  return options;
+}
+
 // Speed error of a tracked car at frame i (true speed of its origin).
 double SpeedError(const CarSequence& seq, const ObjectResult& r) {
   const double true_speed =
@@ -52,11 +61,7 @@ TEST(JointFrames, PlanarFromParentRoadAndRevoluteFromAxis) {
 
 TEST(ObjectTracker, TracksAPlanarCarExactlyWithoutNoise) {
   CarSequence seq(0.0, 1);
-  // The car turns from its first frame: no zero-turn prior on its first steps
-  // (young_turn_rate_sigma_radps), whose bias this exact test would see.
-  ObjectTrackerOptions options;
-  options.young_turn_rate_sigma_radps = 0.0;
-  ObjectTracker tracker(seq.camera(), options);
+  ObjectTracker tracker(seq.camera(), OptionsForACarTurningFromItsFirstFrame());
   const SE3d gt0 = seq.world_from_object();
   SE3d est0;
   int64_t object_id = -1;
@@ -758,9 +763,9 @@ TEST(ObjectTracker, ACarEnteringATurnIsFollowed) {
 }
 
 // A new car 25 m straight ahead, seen from behind, 20 points with 2 px of
-// keypoint noise: its yaw is barely observed. The zero-turn prior on its first steps keeps its
-// heading; without it the first free steps turn it, and the
-// constant-velocity prediction carries the turn on.
+// keypoint noise: its yaw is barely observed. The zero-turn prior on its
+// first steps keeps its heading; without it the first free steps turn it,
+// and the constant-velocity prediction carries the turn on.
 TEST(ObjectTracker, AYoungCarSeenFromBehindDoesNotSpin) {
   double worst[2] = {0.0, 0.0};
   for (int prior : {1, 0}) {
@@ -883,12 +888,9 @@ TEST(ObjectTracker, MatchingMeasurementsDoNotInheritFlowDrift) {
   for (bool by_matching : {true, false}) {
     CarSequence seq(0.0, 25);
     seq.set_flow_bias(Eigen::Vector2d(0.4, 0.0));
-    ObjectTrackerOptions options;
+    ObjectTrackerOptions options = OptionsForACarTurningFromItsFirstFrame();
     options.measure_by_matching = by_matching;
     options.stationary_after_frames = 0;
-    // The car turns from its first frame: no zero-turn prior on its first steps
-    // (young_turn_rate_sigma_radps), whose bias this exact test would see.
-    options.young_turn_rate_sigma_radps = 0.0;
     ObjectTracker tracker(seq.camera(), options);
     const SE3d gt0 = seq.world_from_object();
     SE3d est0;
@@ -993,11 +995,7 @@ TEST(ObjectTracker, TrajectoriesKeepOldPosesAndRemovedObjects) {
 
 TEST(ObjectTracker, LostThenReidentifiedUnderANewClusterId) {
   CarSequence seq(0.0, 3);
-  ObjectTrackerOptions options;
-  // The car turns from its first frame: no zero-turn prior on its first steps
-  // (young_turn_rate_sigma_radps), whose bias this exact test would see.
-  options.young_turn_rate_sigma_radps = 0.0;
-  ObjectTracker tracker(seq.camera(), options);
+  ObjectTracker tracker(seq.camera(), OptionsForACarTurningFromItsFirstFrame());
   const SE3d gt0 = seq.world_from_object();
   const auto [id, est0] = TrackCar(&tracker, &seq, 11, 5);
   ASSERT_GE(id, 0);
