@@ -517,6 +517,10 @@ double ObjectTracker::DepthNoise(double depth, double level_scale) const {
   return depth * depth * options_.disparity_sigma_px * level_scale / camera_.bf();
 }
 
+double ObjectTracker::StepDisparitySigma(double level_scale) const {
+  return options_.step_disparity_noise ? options_.disparity_sigma_px * level_scale : 0.0;
+}
+
 double ObjectTracker::StereoLevelScale(const FrameKeypoints& kps, size_t k) const {
   return kps.stereo_support_px.empty() ? 1.0
                                        : kps.stereo_support_px[k] / options_.stereo_level0_half_px;
@@ -682,19 +686,22 @@ bool ObjectTracker::Track(const FrameContext& ctx,
 
   std::vector<TwistObservation> obs;
   std::vector<size_t> obs_point;
-  auto add_obs = [&](size_t point, const Eigen::Vector2d& uv, double u_right) {
+  // `level_scale`: of the level the disparity was measured on (DepthNoise).
+  auto add_obs = [&](size_t point, const Eigen::Vector2d& uv, double u_right, double level_scale) {
     TwistObservation t;
     t.point_in_object = o->points[point].point_in_object;
     if (options_.model_point_noise) t.point_sigma_in_object = o->points[point].sigma_in_object;
     t.uv = uv;
     t.u_right = u_right;
+    t.disparity_sigma_px = StepDisparitySigma(level_scale);
     obs.push_back(t);
     obs_point.push_back(point);
   };
   // Right-image u of the stereo keypoint under a flow position (descriptor
   // checked when both sides have one), shifted by the sub-pixel offset;
-  // without one, measured on the images (measure_tracked_stereo).
-  auto stereo_at = [&](const Eigen::Vector2d& uv, size_t point) {
+  // without one, measured on the images (measure_tracked_stereo). Sets
+  // `*level_scale` to the scale of the level it was measured on.
+  auto stereo_at = [&](const Eigen::Vector2d& uv, size_t point, double* level_scale) {
     const cv::Mat& desc = o->points[point].descriptor;
     const int kp = ctx.grid.Nearest(uv, options_.stereo_lookup_px, [&](int i) {
       if (f.keypoints.u_right[static_cast<size_t>(i)] < 0.0) return false;
@@ -702,14 +709,20 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       return HammingDistance(desc, f.keypoints.descriptors.row(i)) <= options_.search.max_hamming;
     });
     const double u_right = kp < 0 ? -1.0 : ObjectStereo(ctx, det, static_cast<size_t>(kp));
-    if (u_right >= 0.0) return u_right + (uv.x() - f.keypoints.uv[static_cast<size_t>(kp)].x());
+    if (u_right >= 0.0) {
+      *level_scale = StereoLevelScale(f.keypoints, static_cast<size_t>(kp));
+      return u_right + (uv.x() - f.keypoints.uv[static_cast<size_t>(kp)].x());
+    }
+    *level_scale = 1.0;  // masked_stereo_default_half_px, the level-0 block
     return TrackedPointStereo(
         ctx, det, uv, (camera_from_predicted * o->points[point].point_in_object).z());
   };
   for (size_t j = 0; j < flow_idx.size(); ++j) {
     const auto& q = (*flowed)[j];
     if (!q || !InsideDetection(det, *q, 2.0)) continue;
-    add_obs(flow_idx[j], *q, stereo_at(*q, flow_idx[j]));
+    double level_scale = 1.0;
+    const double u_right = stereo_at(*q, flow_idx[j], &level_scale);
+    add_obs(flow_idx[j], *q, u_right, level_scale);
   }
   const Matrix6d projector = o->joint.WorldProjector();
   // The constrained twist from the current observations, when there are
@@ -777,7 +790,8 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       if (match[k] >= 0) {
         const size_t kp = static_cast<size_t>(match[k]);
         if (!InsideDetection(det, f.keypoints.uv[kp], 2.0)) continue;
-        add_obs(k, f.keypoints.uv[kp], ObjectStereo(ctx, det, kp));
+        add_obs(
+            k, f.keypoints.uv[kp], ObjectStereo(ctx, det, kp), StereoLevelScale(f.keypoints, kp));
         continue;
       }
       if (o->points[k].patch.empty()) continue;
@@ -786,7 +800,10 @@ bool ObjectTracker::Track(const FrameContext& ctx,
           !camera_.InImage(uv, 8))
         continue;
       const auto found = PatchSearch(f.left, o->points[k].patch, uv, options_.search);
-      if (found && InsideDetection(det, *found, 2.0)) add_obs(k, *found, stereo_at(*found, k));
+      if (!found || !InsideDetection(det, *found, 2.0)) continue;
+      double level_scale = 1.0;
+      const double u_right = stereo_at(*found, k, &level_scale);
+      add_obs(k, *found, u_right, level_scale);
     }
     // Falls back to the first (flow) estimate and its inliers.
     auto use_flow_estimate = [&]() {
@@ -966,6 +983,7 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
     if (options_.model_point_noise) t.point_sigma_in_object = o->points[k].sigma_in_object;
     t.uv = f.keypoints.uv[kp];
     t.u_right = ObjectStereo(ctx, det, kp);
+    t.disparity_sigma_px = StepDisparitySigma(StereoLevelScale(f.keypoints, kp));
     obs.push_back(t);
     obs_point.push_back(k);
   }

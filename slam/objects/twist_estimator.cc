@@ -175,13 +175,23 @@ std::optional<Eigen::Vector3d> TwistResidual(const geometry::StereoCamera& camer
       obs.uv.x() - uvr.x(), obs.uv.y() - uvr.y(), obs.stereo() ? obs.u_right - uvr.z() : 0.0);
 }
 
+Eigen::Matrix3d StereoWhitening(const TwistObservation& obs, double sigma_px) {
+  Eigen::Matrix3d w = Eigen::Matrix3d::Identity();
+  if (!obs.stereo() || !(obs.disparity_sigma_px > 0.0) || !(sigma_px > 0.0)) return w;
+  // The inverse of S's Cholesky factor, L = [1 0 0; 0 1 0; 1 0 k].
+  const double k = obs.disparity_sigma_px / sigma_px;
+  w(2, 0) = -1.0 / k;
+  w(2, 2) = 1.0 / k;
+  return w;
+}
+
 Eigen::Matrix3d ObservationWhitening(const geometry::StereoCamera& camera,
                                      const SE3d& camera_from_world,
                                      const SE3d& world_from_object_previous,
                                      const Vector6d& constrained_twist,
                                      const TwistObservation& obs,
                                      double sigma_px) {
-  Eigen::Matrix3d w = Eigen::Matrix3d::Identity();
+  Eigen::Matrix3d w = StereoWhitening(obs, sigma_px);
   if (obs.point_sigma_in_object.isZero() || !(sigma_px > 0.0)) return w;
   const SE3d camera_from_object =
       camera_from_world * SE3d::Exp(constrained_twist) * world_from_object_previous;
@@ -194,11 +204,13 @@ Eigen::Matrix3d ObservationWhitening(const geometry::StereoCamera& camera,
   } else {
     g.head<2>() = optimization::ProjectionJacobian<2>(camera, p_c) * d_c;
   }
+  g = w * g;  // in the stereo-whitened residual space
   const double g2 = g.squaredNorm() / (sigma_px * sigma_px);
   if (!(g2 > 0.0)) return w;
   const Eigen::Vector3d unit = g.normalized();
-  w -= (1.0 - 1.0 / std::sqrt(1.0 + g2)) * unit * unit.transpose();
-  return w;
+  return (Eigen::Matrix3d::Identity() -
+          (1.0 - 1.0 / std::sqrt(1.0 + g2)) * unit * unit.transpose()) *
+         w;
 }
 
 absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& camera,
@@ -252,9 +264,10 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
   std::vector<bool> active(n);
   for (size_t j = 0; j < n; ++j) active[j] = res[j].has_value();
   double sigma = mad(res, &active);
+  // Whitened: points with their own error, stereo with its own disparity noise.
   const bool any_point_noise =
       std::any_of(observations.begin(), observations.end(), [](const TwistObservation& o) {
-        return !o.point_sigma_in_object.isZero();
+        return !o.point_sigma_in_object.isZero() || (o.stereo() && o.disparity_sigma_px > 0.0);
       });
   if (any_point_noise) {  // whitened at the first scale, then the scale again
     update_whitening(xi, sigma);
@@ -288,7 +301,7 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
                      world_from_object_previous,
                      world_projector,
                      ob,
-                     point_error ? Eigen::Matrix3d::Identity() : whitening[j],
+                     point_error ? StereoWhitening(ob, sigma) : whitening[j],
                      1.0 / sigma,
                      point_error,
                      options.use_autodiff);

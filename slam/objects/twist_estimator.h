@@ -10,6 +10,12 @@
 // after every round, observations with ‖r_j/σ‖² above the χ² gate are
 // rejected and the problem is solved again (outliers may come back).
 //
+// A stereo observation measures its disparity d where the point was found:
+// u_right = u − d carries the position's error too. With a disparity noise of
+// its own (TwistObservation::disparity_sigma_px) the residual is whitened
+// under that correlation (StereoWhitening), which weighs the depth by the
+// disparity's noise instead of the position's (docs/objects.md §34).
+//
 // A point need not be exact: one triangulated by stereo at 26 m is uncertain
 // by ~0.9 m along its ray (TwistObservation::point_sigma_in_object). Taken as
 // exact, a noisy structure is best explained by the twist that keeps the view
@@ -47,6 +53,13 @@ struct TwistObservation {
   Eigen::Vector3d point_sigma_in_object = Eigen::Vector3d::Zero();
   Eigen::Vector2d uv = Eigen::Vector2d::Zero();  // left image, pixels
   double u_right = -1.0;                         // right image u; < 0: mono
+  // Noise of the disparity u − u_right alone (pixels). A stereo observation
+  // measures its disparity at uv, so u_right = u − d carries u's error as
+  // well: with a positive value the residual (r_u, r_v, r_ur) is whitened
+  // under that correlation, which gives the disparity its own weight
+  // 1/σ_d² instead of the image position's. 0: u_right independent of u
+  // with the same noise.
+  double disparity_sigma_px = 0.0;
   bool stereo() const { return u_right >= 0.0; }
 };
 
@@ -135,10 +148,20 @@ double TwistSignificance(const geometry::StereoCamera& camera,
 // at confidence 0.95, 0.99 or 0.999 (the nearest tabulated confidence).
 double ChiSquareQuantile(int dof, double confidence);
 
+// Whitening of a stereo observation whose disparity has its own noise σ_d
+// (TwistObservation::disparity_sigma_px) at pixel scale σ: with u_right =
+// u − d, Cov(r_u, r_v, r_ur) = σ² S, S = [1 0 1; 0 1 0; 1 0 1 + k²], k = σ_d/σ,
+// and W = L⁻¹ for S = L Lᵀ maps the residual to (r_u, r_v, (r_ur − r_u)/k).
+// The identity for a mono observation or σ_d = 0.
+Eigen::Matrix3d StereoWhitening(const TwistObservation& observation, double sigma_px);
+
 // Whitening W of one observation's residual at a given twist and pixel scale
-// σ: W = (I + g gᵀ/σ²)^(−1/2) = I − (1 − 1/√(1 + |g|²/σ²)) ĝ ĝᵀ (3 x 3; the
-// third row and column are unused for a mono observation). The identity for
-// an exact point or one not in front of the camera.
+// σ. For an exact point, StereoWhitening. For a point with its own error g
+// (the image of point_sigma_in_object), after the stereo whitening W_s:
+// W = (I + h hᵀ/σ²)^(−1/2) W_s with h = W_s g, i.e.
+// (I − (1 − 1/√(1 + |h|²/σ²)) ĥ ĥᵀ) W_s (3 x 3; the third row and column are
+// unused for a mono observation). The point's error is dropped for a point
+// not in front of the camera.
 Eigen::Matrix3d ObservationWhitening(const geometry::StereoCamera& camera,
                                      const geometry::SE3d& camera_from_world,
                                      const geometry::SE3d& world_from_object_previous,
