@@ -517,8 +517,10 @@ double ObjectTracker::DepthNoise(double depth, double level_scale) const {
   return depth * depth * options_.disparity_sigma_px * level_scale / camera_.bf();
 }
 
-double ObjectTracker::StepDisparitySigma(double level_scale) const {
-  return options_.step_disparity_noise ? options_.disparity_sigma_px * level_scale : 0.0;
+double ObjectTracker::StepDisparityNoiseRatio(double level_scale) const {
+  return options_.step_disparity_noise
+             ? options_.disparity_sigma_px * level_scale / options_.estimator.min_sigma_px
+             : 0.0;
 }
 
 double ObjectTracker::StereoLevelScale(const FrameKeypoints& kps, size_t k) const {
@@ -693,7 +695,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
     if (options_.model_point_noise) t.point_sigma_in_object = o->points[point].sigma_in_object;
     t.uv = uv;
     t.u_right = u_right;
-    t.disparity_sigma_px = StepDisparitySigma(level_scale);
+    t.disparity_noise_ratio = StepDisparityNoiseRatio(level_scale);
     obs.push_back(t);
     obs_point.push_back(point);
   };
@@ -983,7 +985,7 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
     if (options_.model_point_noise) t.point_sigma_in_object = o->points[k].sigma_in_object;
     t.uv = f.keypoints.uv[kp];
     t.u_right = ObjectStereo(ctx, det, kp);
-    t.disparity_sigma_px = StepDisparitySigma(StereoLevelScale(f.keypoints, kp));
+    t.disparity_noise_ratio = StepDisparityNoiseRatio(StereoLevelScale(f.keypoints, kp));
     obs.push_back(t);
     obs_point.push_back(k);
   }

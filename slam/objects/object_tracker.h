@@ -260,19 +260,17 @@ struct ObjectTrackerOptions {
   // (docs/objects.md §33).
   bool measure_tracked_stereo = true;
   double tracked_stereo_search_fraction = 0.05;
-  // A step's stereo observation carries its disparity's own noise,
-  // disparity_sigma_px × the scale of the level it was measured on (1 for
-  // a disparity measured at a tracked point), and the twist estimator
-  // whitens u_right = u − d under that correlation
-  // (TwistObservation::disparity_sigma_px). Without it, u_right counted as an
-  // independent measurement with the position's noise (0.7-1 px), so the
+  // A step's stereo observation carries its disparity's own noise:
+  // disparity_sigma_px × the scale of the level it was measured on (1 for a
+  // disparity measured at a tracked point), relative to the estimator's
+  // floor on a position's noise (estimator.min_sigma_px), as
+  // TwistObservation::disparity_noise_ratio; the twist estimator whitens
+  // u_right = u − d under that correlation. Without it, u_right counted as
+  // an independent measurement with the position's noise (0.7-1 px), so the
   // depth of a step rested mostly on the image size of the structure. Over
   // the 24 generated runs: moving ATE 0.182 -> 0.167 m, coverage 0.900 ->
-  // 0.911, speed error 0.586 -> 0.533 km/h (docs/objects.md §34). Off until
-  // the synthetic tracker tests it breaks are understood: one is a step
-  // after a re-acquisition whose estimate now fails, so that the frame is
-  // taken by a second re-acquisition past the filter's gate (§34).
-  bool step_disparity_noise = false;
+  // 0.911, speed error 0.586 -> 0.533 km/h (docs/objects.md §34).
+  bool step_disparity_noise = true;
   int max_frames_lost = 10;  // re-identification window, then removed
   double reid_min_score = 0.3;
   // Whether an object tracked up to the last frame whose cluster has no
@@ -516,9 +514,9 @@ class ObjectTracker {
   double DepthNoise(double depth, double level_scale) const;
   // The pyramid-level scale s of keypoint k's stereo match (DepthNoise).
   double StereoLevelScale(const FrameKeypoints& keypoints, size_t k) const;
-  // TwistObservation::disparity_sigma_px of a disparity measured on a level
-  // of scale s (step_disparity_noise; 0 when off).
-  double StepDisparitySigma(double level_scale) const;
+  // TwistObservation::disparity_noise_ratio of a disparity measured on a
+  // level of scale s (step_disparity_noise; 0 when off).
+  double StepDisparityNoiseRatio(double level_scale) const;
   // One σ of a stereo point p_c (camera frame) from keypoint k: its depth
   // noise along its ray, in the camera frame.
   Eigen::Vector3d StereoPointSigma(const FrameKeypoints& keypoints,

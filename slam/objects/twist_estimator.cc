@@ -175,11 +175,11 @@ std::optional<Eigen::Vector3d> TwistResidual(const geometry::StereoCamera& camer
       obs.uv.x() - uvr.x(), obs.uv.y() - uvr.y(), obs.stereo() ? obs.u_right - uvr.z() : 0.0);
 }
 
-Eigen::Matrix3d StereoWhitening(const TwistObservation& obs, double sigma_px) {
+Eigen::Matrix3d StereoWhitening(const TwistObservation& obs) {
   Eigen::Matrix3d w = Eigen::Matrix3d::Identity();
-  if (!obs.stereo() || !(obs.disparity_sigma_px > 0.0) || !(sigma_px > 0.0)) return w;
-  // The inverse of S's Cholesky factor, L = [1 0 0; 0 1 0; 1 0 k].
-  const double k = obs.disparity_sigma_px / sigma_px;
+  if (!obs.stereo() || !(obs.disparity_noise_ratio > 0.0)) return w;
+  // The inverse of S's Cholesky factor L = [1 0 0; 0 1 0; 1 0 k].
+  const double k = obs.disparity_noise_ratio;
   w(2, 0) = -1.0 / k;
   w(2, 2) = 1.0 / k;
   return w;
@@ -191,7 +191,7 @@ Eigen::Matrix3d ObservationWhitening(const geometry::StereoCamera& camera,
                                      const Vector6d& constrained_twist,
                                      const TwistObservation& obs,
                                      double sigma_px) {
-  Eigen::Matrix3d w = StereoWhitening(obs, sigma_px);
+  Eigen::Matrix3d w = StereoWhitening(obs);
   if (obs.point_sigma_in_object.isZero() || !(sigma_px > 0.0)) return w;
   const SE3d camera_from_object =
       camera_from_world * SE3d::Exp(constrained_twist) * world_from_object_previous;
@@ -267,7 +267,7 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
   // Whitened: points with their own error, stereo with its own disparity noise.
   const bool any_point_noise =
       std::any_of(observations.begin(), observations.end(), [](const TwistObservation& o) {
-        return !o.point_sigma_in_object.isZero() || (o.stereo() && o.disparity_sigma_px > 0.0);
+        return !o.point_sigma_in_object.isZero() || (o.stereo() && o.disparity_noise_ratio > 0.0);
       });
   if (any_point_noise) {  // whitened at the first scale, then the scale again
     update_whitening(xi, sigma);
@@ -295,16 +295,15 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
         // alone.
         const bool point_error =
             options.estimate_point_errors && !ob.point_sigma_in_object.isZero();
-        ceres::CostFunction* cost =
-            MakeCost(camera,
-                     camera_from_world,
-                     world_from_object_previous,
-                     world_projector,
-                     ob,
-                     point_error ? StereoWhitening(ob, sigma) : whitening[j],
-                     1.0 / sigma,
-                     point_error,
-                     options.use_autodiff);
+        ceres::CostFunction* cost = MakeCost(camera,
+                                             camera_from_world,
+                                             world_from_object_previous,
+                                             world_projector,
+                                             ob,
+                                             point_error ? StereoWhitening(ob) : whitening[j],
+                                             1.0 / sigma,
+                                             point_error,
+                                             options.use_autodiff);
         if (point_error) {
           problem.AddResidualBlock(
               cost, new ceres::HuberLoss(options.huber_delta), x, &point_errors[j]);

@@ -12,7 +12,7 @@
 //
 // A stereo observation measures its disparity d where the point was found:
 // u_right = u − d carries the position's error too. With a disparity noise of
-// its own (TwistObservation::disparity_sigma_px) the residual is whitened
+// its own (TwistObservation::disparity_noise_ratio) the residual is whitened
 // under that correlation (StereoWhitening), which weighs the depth by the
 // disparity's noise instead of the position's (docs/objects.md §34).
 //
@@ -53,13 +53,16 @@ struct TwistObservation {
   Eigen::Vector3d point_sigma_in_object = Eigen::Vector3d::Zero();
   Eigen::Vector2d uv = Eigen::Vector2d::Zero();  // left image, pixels
   double u_right = -1.0;                         // right image u; < 0: mono
-  // Noise of the disparity u − u_right alone (pixels). A stereo observation
-  // measures its disparity at uv, so u_right = u − d carries u's error as
-  // well: with a positive value the residual (r_u, r_v, r_ur) is whitened
-  // under that correlation, which gives the disparity its own weight
-  // 1/σ_d² instead of the image position's. 0: u_right independent of u
-  // with the same noise.
-  double disparity_sigma_px = 0.0;
+  // The disparity's own noise as a fraction k of the position's. A stereo
+  // observation measures its disparity d where the point was found, so
+  // u_right = u − d carries u's error too: Cov(r_u, r_v, r_ur) =
+  // σ² [1 0 1; 0 1 0; 1 0 1 + k²], σ the step's scale. With k > 0 the
+  // residual is whitened under that correlation (StereoWhitening), which
+  // weighs the depth by the disparity's noise kσ instead of the position's.
+  // A ratio rather than a σ_d in pixels: a step whose positions are poor (a
+  // far seed, scattered matches: the scale above its floor) has poorer
+  // disparities too. 0: u_right independent of u, with the same noise.
+  double disparity_noise_ratio = 0.0;
   bool stereo() const { return u_right >= 0.0; }
 };
 
@@ -148,12 +151,12 @@ double TwistSignificance(const geometry::StereoCamera& camera,
 // at confidence 0.95, 0.99 or 0.999 (the nearest tabulated confidence).
 double ChiSquareQuantile(int dof, double confidence);
 
-// Whitening of a stereo observation whose disparity has its own noise σ_d
-// (TwistObservation::disparity_sigma_px) at pixel scale σ: with u_right =
-// u − d, Cov(r_u, r_v, r_ur) = σ² S, S = [1 0 1; 0 1 0; 1 0 1 + k²], k = σ_d/σ,
-// and W = L⁻¹ for S = L Lᵀ maps the residual to (r_u, r_v, (r_ur − r_u)/k).
-// The identity for a mono observation or σ_d = 0.
-Eigen::Matrix3d StereoWhitening(const TwistObservation& observation, double sigma_px);
+// Whitening of a stereo observation whose disparity has its own noise, k
+// times the position's (TwistObservation::disparity_noise_ratio): with
+// Cov = σ² S, S = [1 0 1; 0 1 0; 1 0 1 + k²] = L Lᵀ, L = [1 0 0; 0 1 0; 1 0 k],
+// W = L⁻¹ maps the residual to (r_u, r_v, (r_ur − r_u)/k), each with noise σ.
+// The identity for a mono observation or k = 0.
+Eigen::Matrix3d StereoWhitening(const TwistObservation& observation);
 
 // Whitening W of one observation's residual at a given twist and pixel scale
 // σ. For an exact point, StereoWhitening. For a point with its own error g

@@ -2,7 +2,11 @@
 // driving on the road (planar joint) seen by a camera moving forward, with
 // exact ground truth. Keypoints are the projections of the car's points (plus
 // optional noise) with a fixed random descriptor per point, and the client's
-// dense flow carries the exact displacement of every point.
+// dense flow carries the exact displacement of every point. A keypoint's
+// noise moves its right-image u with it, and its disparity has a noise of its
+// own, kDisparityNoiseRatio times the keypoint's: the ratio the tracker
+// assumes (disparity_sigma_px 0.3 px on level 0 to the twist estimator's
+// floor on a keypoint's position, min_sigma_px 0.7 px).
 #pragma once
 
 #include <cmath>
@@ -16,6 +20,8 @@
 #include "tests/slam/objects/synthetic_objects.h"
 
 namespace twist::objects::testing {
+
+inline constexpr double kDisparityNoiseRatio = 0.3 / 0.7;
 
 class CarSequence {
  public:
@@ -69,6 +75,9 @@ class CarSequence {
   // Gaussian noise of this σ added to the keypoints (uv and u_right) on top
   // of noise_px, as when most matches are wrong.
   void set_extra_noise_px(double sigma_px) { extra_noise_ = sigma_px; }
+  // u_right's noise drawn independently of u's, with the same σ (the model
+  // of the tests written before ObjectTrackerOptions::step_disparity_noise).
+  void set_independent_right_noise(bool independent) { independent_right_noise_ = independent; }
   void set_shown_points(size_t n) { set_shown_range(0, n); }
   // The camera's height estimate drifts by this much per frame (world y):
   // the tracker gets the drifting pose, and the road plane as that camera
@@ -110,7 +119,10 @@ class CarSequence {
       double ur = uvr.z();
       if (noise_ > 0) {
         uv += Eigen::Vector2d(g(rng_), g(rng_));
-        ur += g(rng_);
+        // The disparity is measured where the keypoint was found: u_right
+        // moves with u, plus the disparity's own noise.
+        ur += independent_right_noise_ ? g(rng_)
+                                       : (uv.x() - uvr.x()) + g(rng_) * kDisparityNoiseRatio;
       }
       if (extra_noise_ > 0) {
         std::normal_distribution<double> e(0.0, extra_noise_);
@@ -177,6 +189,7 @@ class CarSequence {
 
   double noise_;
   double extra_noise_ = 0.0;
+  bool independent_right_noise_ = false;
   double height_drift_ = 0.0;
   SE3d camera_from_world_given_, camera_from_world_true_;
   std::mt19937_64 rng_;

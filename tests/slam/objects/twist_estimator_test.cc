@@ -317,23 +317,22 @@ TEST(TwistEstimator, StereoWhiteningDecorrelatesTheDisparity) {
   TwistObservation o;
   o.uv = Eigen::Vector2d(600.0, 200.0);
   o.u_right = 580.0;
-  o.disparity_sigma_px = 0.2;
-  const double sigma = 0.8, k = 0.25;
-  Eigen::Matrix3d cov;
-  cov << 1, 0, 1, 0, 1, 0, 1, 0, 1 + k * k;
-  cov *= sigma * sigma;
-  const Eigen::Matrix3d w = StereoWhitening(o, sigma);
-  EXPECT_LT((w * cov * w.transpose() - sigma * sigma * Eigen::Matrix3d::Identity()).norm(), 1e-12);
+  const double k = 0.25;
+  o.disparity_noise_ratio = k;
+  Eigen::Matrix3d s;
+  s << 1, 0, 1, 0, 1, 0, 1, 0, 1 + k * k;
+  const Eigen::Matrix3d w = StereoWhitening(o);
+  EXPECT_LT((w * s * w.transpose() - Eigen::Matrix3d::Identity()).norm(), 1e-12);
   // A residual on the position alone moves u_right with it: no disparity residual.
   EXPECT_LT(std::abs((w * Eigen::Vector3d(0.5, 0.0, 0.5))(2)), 1e-12);
-  // A disparity residual of σ_d counts as σ.
-  EXPECT_NEAR((w * Eigen::Vector3d(0.0, 0.0, 0.2))(2), sigma, 1e-12);
+  // A disparity residual of k counts as 1.
+  EXPECT_NEAR((w * Eigen::Vector3d(0.0, 0.0, k))(2), 1.0, 1e-12);
   // Without a disparity noise, or mono: the identity (u_right independent of u).
-  o.disparity_sigma_px = 0.0;
-  EXPECT_TRUE(StereoWhitening(o, sigma).isIdentity(0.0));
-  o.disparity_sigma_px = 0.2;
+  o.disparity_noise_ratio = 0.0;
+  EXPECT_TRUE(StereoWhitening(o).isIdentity(0.0));
+  o.disparity_noise_ratio = k;
   o.u_right = -1.0;
-  EXPECT_TRUE(StereoWhitening(o, sigma).isIdentity(0.0));
+  EXPECT_TRUE(StereoWhitening(o).isIdentity(0.0));
 }
 
 // A stereo observation measures its disparity where its point was found, so
@@ -357,8 +356,8 @@ TEST(TwistEstimator, TheDisparitysOwnNoiseWeighsTheDepth) {
       o.u_right = o.uv.x() - (d + disparity(rng));
     }
     const double true_depth = (s.camera_from_world * s.world_from_object_true).translation().z();
-    auto depth_error = [&](double disparity_sigma_px) {
-      for (TwistObservation& o : obs) o.disparity_sigma_px = disparity_sigma_px;
+    auto depth_error = [&](double disparity_noise_ratio) {
+      for (TwistObservation& o : obs) o.disparity_noise_ratio = disparity_noise_ratio;
       const auto est = EstimateScene(s, obs);
       EXPECT_TRUE(est.ok() && est->success);
       if (!est.ok() || !est->success) return 1e3;
