@@ -265,11 +265,11 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
   for (size_t j = 0; j < n; ++j) active[j] = res[j].has_value();
   double sigma = mad(res, &active);
   // Whitened: points with their own error, stereo with its own disparity noise.
-  const bool any_point_noise =
+  const bool whitened =
       std::any_of(observations.begin(), observations.end(), [](const TwistObservation& o) {
         return !o.point_sigma_in_object.isZero() || (o.stereo() && o.disparity_noise_ratio > 0.0);
       });
-  if (any_point_noise) {  // whitened at the first scale, then the scale again
+  if (whitened) {  // whitened at the first scale, then the scale again
     update_whitening(xi, sigma);
     res = residuals_at(xi);
     sigma = mad(res, &active);
@@ -340,7 +340,7 @@ absl::StatusOr<TwistEstimate> EstimateObjectTwist(const geometry::StereoCamera& 
     }
     // New scale from the current inliers (whitened at the new twist), then
     // re-gate every observation.
-    if (any_point_noise) update_whitening(xi, sigma);
+    if (whitened) update_whitening(xi, sigma);
     res = residuals_at(xi);
     sigma = mad(res, &active);
     std::vector<bool> next(n, false);

@@ -21,7 +21,8 @@
 
 namespace twist::objects::testing {
 
-inline constexpr double kDisparityNoiseRatio = 0.3 / 0.7;
+inline const double kDisparityNoiseRatio =
+    ObjectTrackerOptions{}.disparity_sigma_px / TwistEstimatorOptions{}.min_sigma_px;
 
 class CarSequence {
  public:
