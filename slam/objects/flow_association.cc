@@ -4,6 +4,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 #include <string>
+#include <vector>
 
 namespace twist::objects {
 namespace {
@@ -20,6 +21,18 @@ absl::StatusOr<cv::Mat> ToGray(const cv::Mat& image, const char* what) {
     return gray;
   }
   return absl::InvalidArgumentError(std::string(what) + " image must have 1 or 3 channels");
+}
+
+// What calcOpticalFlowPyrLK builds from an image (same window, levels and
+// borders), plus the Scharr derivatives it would otherwise compute per call.
+std::vector<cv::Mat> GrayPyramid(const cv::Mat& gray, const SparseFlowOptions& options) {
+  std::vector<cv::Mat> pyramid;
+  cv::buildOpticalFlowPyramid(gray,
+                              pyramid,
+                              cv::Size(options.window_size, options.window_size),
+                              options.max_level,
+                              /*withDerivatives=*/true);
+  return pyramid;
 }
 
 bool Inside(const cv::Size& size, const Eigen::Vector2d& p, double border) {
@@ -43,6 +56,14 @@ absl::Status SparseFlowOptions::Validate() const {
   return absl::OkStatus();
 }
 
+absl::StatusOr<std::vector<cv::Mat>> SparseFlowPyramid(const cv::Mat& image,
+                                                       const SparseFlowOptions& options) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  absl::StatusOr<cv::Mat> gray = ToGray(image, "sparse flow");
+  if (!gray.ok()) return gray.status();
+  return GrayPyramid(*gray, options);
+}
+
 absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> TrackSparseFlow(
     const cv::Mat& prev,
     const cv::Mat& next,
@@ -55,6 +76,23 @@ absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> TrackSparseFlow(
   absl::StatusOr<cv::Mat> g1 = ToGray(next, "current");
   if (!g1.ok()) return g1.status();
   if (g0->size() != g1->size()) {
+    return absl::InvalidArgumentError("sparse flow: previous and current images differ in size");
+  }
+  return TrackSparseFlow(
+      GrayPyramid(*g0, options), GrayPyramid(*g1, options), prev_points, options, predicted);
+}
+
+absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> TrackSparseFlow(
+    const std::vector<cv::Mat>& prev_pyramid,
+    const std::vector<cv::Mat>& next_pyramid,
+    const std::vector<Eigen::Vector2d>& prev_points,
+    const SparseFlowOptions& options,
+    const std::vector<Eigen::Vector2d>* predicted) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  if (prev_pyramid.empty() || next_pyramid.empty()) {
+    return absl::InvalidArgumentError("sparse flow: empty pyramid");
+  }
+  if (prev_pyramid[0].size() != next_pyramid[0].size()) {
     return absl::InvalidArgumentError("sparse flow: previous and current images differ in size");
   }
   if (predicted != nullptr && predicted->size() != prev_points.size()) {
@@ -77,8 +115,8 @@ absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> TrackSparseFlow(
       cv::TermCriteria::COUNT | cv::TermCriteria::EPS, options.max_iterations, options.epsilon);
   std::vector<uchar> status, status_back;
   std::vector<float> err;
-  cv::calcOpticalFlowPyrLK(*g0,
-                           *g1,
+  cv::calcOpticalFlowPyrLK(prev_pyramid,
+                           next_pyramid,
                            p0,
                            p1,
                            status,
@@ -89,8 +127,8 @@ absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> TrackSparseFlow(
                            flags,
                            options.min_eigen_threshold);
   back = p0;  // the start is a good guess for the way back
-  cv::calcOpticalFlowPyrLK(*g1,
-                           *g0,
+  cv::calcOpticalFlowPyrLK(next_pyramid,
+                           prev_pyramid,
                            p1,
                            back,
                            status_back,
@@ -106,7 +144,7 @@ absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> TrackSparseFlow(
     const Eigen::Vector2d bwd(back[k].x, back[k].y);
     if (!fwd.allFinite() || (bwd - prev_points[k]).norm() > options.max_forward_backward_px)
       continue;
-    if (!Inside(g1->size(), fwd, options.border_px)) continue;
+    if (!Inside(next_pyramid[0].size(), fwd, options.border_px)) continue;
     out[k] = fwd;
   }
   return out;

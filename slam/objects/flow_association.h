@@ -38,6 +38,21 @@ absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> TrackSparseFlow(
     const SparseFlowOptions& options,
     const std::vector<Eigen::Vector2d>* predicted = nullptr);
 
+// The pyramid TrackSparseFlow builds from an image (8-bit gray or BGR), with
+// its derivatives: the objects of one frame share one per image instead of
+// building both images' pyramids on every call.
+absl::StatusOr<std::vector<cv::Mat>> SparseFlowPyramid(const cv::Mat& image,
+                                                       const SparseFlowOptions& options);
+
+// TrackSparseFlow on pyramids from SparseFlowPyramid (same options): the same
+// result as on their images.
+absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> TrackSparseFlow(
+    const std::vector<cv::Mat>& prev_pyramid,
+    const std::vector<cv::Mat>& next_pyramid,
+    const std::vector<Eigen::Vector2d>& prev_points,
+    const SparseFlowOptions& options,
+    const std::vector<Eigen::Vector2d>* predicted = nullptr);
+
 // Uses a dense flow field prev -> next (CV_32FC2, (dx, dy) per pixel of the
 // previous image), sampled bilinearly at each point. nullopt when the point is
 // outside the field, the flow is not finite, or the target leaves the image

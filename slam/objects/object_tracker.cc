@@ -135,6 +135,9 @@ struct ObjectTracker::FrameContext {
   // Objects whose re-acquisition the filter's gate refused in this frame: a
   // measurement that disagrees with their motion; not continued either.
   mutable std::unordered_set<int64_t> gate_refused;
+  // The sparse flow's pyramids of the previous and this frame's left image,
+  // built on first use and shared by the frame's objects.
+  mutable std::vector<cv::Mat> prev_pyramid, pyramid;
   FrameContext(const ObjectFrameInput& f, double dt_s)
       : frame(f),
         world_from_camera(f.camera_from_world.Inverse()),
@@ -650,6 +653,21 @@ Vector6d ObjectTracker::FirstStepSeed(const FrameContext& ctx,
   return o.joint.WorldProjector() * seed;
 }
 
+absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> ObjectTracker::SparseFlow(
+    const FrameContext& ctx,
+    const std::vector<Eigen::Vector2d>& prev_uv,
+    const std::vector<Eigen::Vector2d>& predicted_uv) const {
+  if (ctx.pyramid.empty()) {
+    absl::StatusOr<std::vector<cv::Mat>> prev = SparseFlowPyramid(prev_left_, options_.flow);
+    if (!prev.ok()) return prev.status();
+    absl::StatusOr<std::vector<cv::Mat>> next = SparseFlowPyramid(ctx.frame.left, options_.flow);
+    if (!next.ok()) return next.status();
+    ctx.prev_pyramid = *std::move(prev);
+    ctx.pyramid = *std::move(next);
+  }
+  return TrackSparseFlow(ctx.prev_pyramid, ctx.pyramid, prev_uv, options_.flow, &predicted_uv);
+}
+
 bool ObjectTracker::Track(const FrameContext& ctx,
                           const ObjectDetectionInput& det,
                           TrackedObject* o,
@@ -683,7 +701,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   }
   absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> flowed =
       !f.flow.empty() ? TrackDenseFlow(f.flow, prev_uv, options_.flow.border_px)
-                      : TrackSparseFlow(prev_left_, f.left, prev_uv, options_.flow, &pred_uv);
+                      : SparseFlow(ctx, prev_uv, pred_uv);
   if (!flowed.ok()) return false;
 
   std::vector<TwistObservation> obs;

@@ -31,6 +31,7 @@
 #include <deque>
 #include <map>
 #include <opencv2/core.hpp>
+#include <optional>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -478,6 +479,13 @@ class ObjectTracker {
 
  private:
   struct FrameContext;
+  // Sparse flow of the points `prev_uv` of the previous left image into this
+  // frame's, seeded at `predicted_uv` (TrackSparseFlow on the frame's shared
+  // pyramids).
+  absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> SparseFlow(
+      const FrameContext& ctx,
+      const std::vector<Eigen::Vector2d>& prev_uv,
+      const std::vector<Eigen::Vector2d>& predicted_uv) const;
   // A tracked step; a new object's first step (no motion yet) is predicted
   // as no motion, or with seed_from_detection from its detection
   // (FirstStepSeed).

@@ -9,6 +9,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 #include <unordered_map>
+#include <vector>
 
 namespace twist::objects {
 
@@ -123,14 +124,64 @@ double Ncc(const cv::Mat& a, const cv::Mat& b) {
   return da.dot(db) / (static_cast<double>(a.total()) * sa[0] * sb[0]);
 }
 
+Eigen::Vector2d ParabolaPeakOffset(const cv::Mat& scores, int cx, int cy) {
+  CHECK_EQ(scores.type(), CV_64F);
+  // 1D parabola through the neighbours along each axis.
+  auto refine = [](double l, double c, double rr) {
+    const double den = l - 2.0 * c + rr;
+    if (l < -1.5 || rr < -1.5 || std::abs(den) < 1e-12) return 0.0;
+    return std::clamp(0.5 * (l - rr) / den, -0.5, 0.5);
+  };
+  const double c = scores.at<double>(cy, cx);
+  double ox = 0.0, oy = 0.0;
+  if (cx > 0 && cx < scores.cols - 1)
+    ox = refine(scores.at<double>(cy, cx - 1), c, scores.at<double>(cy, cx + 1));
+  if (cy > 0 && cy < scores.rows - 1)
+    oy = refine(scores.at<double>(cy - 1, cx), c, scores.at<double>(cy + 1, cx));
+  return Eigen::Vector2d(ox, oy);
+}
+
 std::optional<Eigen::Vector2d> PatchSearch(const cv::Mat& image,
                                            const cv::Mat& patch,
                                            const Eigen::Vector2d& predicted,
                                            const ProjectionSearchOptions& options) {
   if (patch.empty()) return std::nullopt;
+  CHECK_EQ(image.type(), CV_8UC1);
+  CHECK_EQ(patch.type(), CV_32F);
+  CHECK_EQ(patch.rows, patch.cols);
   const int h = patch.rows / 2;
+  const int side = 2 * h + 1;
   const int r = static_cast<int>(std::ceil(options.patch_search_radius_px));
   const int w = 2 * r + 1;
+  // The template zero-mean once, as Ncc does for every offset.
+  const int n = side * side;
+  std::vector<double> centred(static_cast<size_t>(n));
+  double mean_a = 0.0;
+  for (int y = 0; y < side; ++y) {
+    const float* row = patch.ptr<float>(y);
+    for (int x = 0; x < side; ++x) mean_a += row[x];
+  }
+  mean_a /= n;
+  double var_a = 0.0;
+  for (int y = 0; y < side; ++y) {
+    const float* row = patch.ptr<float>(y);
+    for (int x = 0; x < side; ++x) {
+      const double v = row[x] - mean_a;
+      centred[static_cast<size_t>(y * side + x)] = v;
+      var_a += v * v;
+    }
+  }
+  const double sigma_a = std::sqrt(var_a / n);
+  // One bilinear region covering every offset: the window of offset (dx, dy)
+  // is its sub-block at (r + dx, r + dy), the patch ExtractPatch would take
+  // at predicted + (dx, dy) (up to the float rounding of the centre).
+  cv::Mat region;
+  cv::getRectSubPix(
+      image,
+      cv::Size(side + 2 * r, side + 2 * r),
+      cv::Point2f(static_cast<float>(predicted.x()), static_cast<float>(predicted.y())),
+      region,
+      CV_32F);
   cv::Mat scores(w, w, CV_64F, cv::Scalar(-2.0));
   double best = -2.0;
   int bx = 0, by = 0;
@@ -139,31 +190,37 @@ std::optional<Eigen::Vector2d> PatchSearch(const cv::Mat& image,
       if (dx * dx + dy * dy >
           options.patch_search_radius_px * options.patch_search_radius_px + 1e-9)
         continue;
-      const cv::Mat p = ExtractPatch(image, predicted + Eigen::Vector2d(dx, dy), h);
-      if (p.empty()) continue;
-      const double s = Ncc(patch, p);
-      scores.at<double>(dy + r, dx + r) = s;
-      if (s > best) {
-        best = s;
+      // ExtractPatch's bounds: the whole patch inside the image.
+      const Eigen::Vector2d uv = predicted + Eigen::Vector2d(dx, dy);
+      if (uv.x() - h < 0 || uv.y() - h < 0 || uv.x() + h > image.cols - 1 ||
+          uv.y() + h > image.rows - 1)
+        continue;
+      // Zero-mean NCC with population deviations (Ncc).
+      double sum_b = 0.0, sum_bb = 0.0, sum_ab = 0.0;
+      for (int y = 0; y < side; ++y) {
+        const float* row = region.ptr<float>(r + dy + y) + (r + dx);
+        const double* a = centred.data() + y * side;
+        for (int x = 0; x < side; ++x) {
+          const double b = row[x];
+          sum_b += b;
+          sum_bb += b * b;
+          sum_ab += a[x] * b;
+        }
+      }
+      const double mean_b = sum_b / n;
+      const double sigma_b = std::sqrt(std::max(0.0, sum_bb / n - mean_b * mean_b));
+      const double score =
+          sigma_a < 1e-6 || sigma_b < 1e-6 ? 0.0 : sum_ab / (n * sigma_a * sigma_b);
+      scores.at<double>(dy + r, dx + r) = score;
+      if (score > best) {
+        best = score;
         bx = dx;
         by = dy;
       }
     }
   }
   if (best < options.min_ncc) return std::nullopt;
-  // Sub-pixel: 1D parabola through the neighbours along each axis.
-  auto refine = [](double l, double c, double rr) {
-    const double den = l - 2.0 * c + rr;
-    if (l < -1.5 || rr < -1.5 || std::abs(den) < 1e-12) return 0.0;
-    return std::clamp(0.5 * (l - rr) / den, -0.5, 0.5);
-  };
-  const int cx = bx + r, cy = by + r;
-  double ox = 0.0, oy = 0.0;
-  if (cx > 0 && cx < w - 1)
-    ox = refine(scores.at<double>(cy, cx - 1), best, scores.at<double>(cy, cx + 1));
-  if (cy > 0 && cy < w - 1)
-    oy = refine(scores.at<double>(cy - 1, cx), best, scores.at<double>(cy + 1, cx));
-  return predicted + Eigen::Vector2d(bx + ox, by + oy);
+  return predicted + (Eigen::Vector2d(bx, by) + ParabolaPeakOffset(scores, bx + r, by + r));
 }
 
 }  // namespace twist::objects

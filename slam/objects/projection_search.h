@@ -59,6 +59,11 @@ cv::Mat ExtractPatch(const cv::Mat& image, const Eigen::Vector2d& uv, int half_s
 // Zero-mean normalised cross-correlation of two same-size CV_32F patches.
 double Ncc(const cv::Mat& a, const cv::Mat& b);
 
+// Sub-pixel offset of the peak (cx, cy) of a CV_64F score grid: a parabola
+// through its neighbours along each axis, within ±0.5; 0 along an axis where
+// the peak is on the grid's edge or a neighbour is unscored (< -1.5).
+Eigen::Vector2d ParabolaPeakOffset(const cv::Mat& scores, int cx, int cy);
+
 // Searches the integer offsets within patch_search_radius_px of `predicted`
 // for the best NCC with `patch`, then refines to sub-pixel with a parabola
 // fit. nullopt when the best NCC is below min_ncc.

@@ -87,6 +87,20 @@ std::vector<int> Inliers(const std::vector<Eigen::Vector3d>& points,
   return inliers;
 }
 
+// Inliers(...).size() without collecting them: most RANSAC hypotheses lose,
+// and only a winner's inliers are kept.
+int CountInliers(const std::vector<Eigen::Vector3d>& points,
+                 const Eigen::Vector4d& plane,
+                 double threshold) {
+  int count = 0;
+  const Eigen::Vector3d n = plane.head<3>();
+  const double inv_norm = 1.0 / n.norm();
+  for (const Eigen::Vector3d& p : points) {
+    if (std::abs((n.dot(p) + plane(3)) * inv_norm) <= threshold) ++count;
+  }
+  return count;
+}
+
 double RmsDistance(const std::vector<Eigen::Vector3d>& points,
                    const std::vector<int>& inliers,
                    const Eigen::Vector4d& plane) {
@@ -131,9 +145,9 @@ absl::StatusOr<PlaneFit> FitPlaneRansac(const std::vector<Eigen::Vector3d>& poin
         (points[static_cast<size_t>(i1)] - a).cross(points[static_cast<size_t>(i2)] - a);
     if (normal.norm() < 1e-12) continue;
     const Eigen::Vector4d plane(normal.x(), normal.y(), normal.z(), -normal.dot(a));
-    std::vector<int> inliers = Inliers(points, plane, options.inlier_threshold_m);
-    if (inliers.size() > best_inliers.size()) {
-      best_inliers = std::move(inliers);
+    if (CountInliers(points, plane, options.inlier_threshold_m) >
+        static_cast<int>(best_inliers.size())) {
+      best_inliers = Inliers(points, plane, options.inlier_threshold_m);
       best_plane = NormalizePlane(plane);
       // Adaptive number of iterations for the requested confidence.
       const double w = static_cast<double>(best_inliers.size()) / n;

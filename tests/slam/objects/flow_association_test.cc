@@ -2,7 +2,10 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
 #include <opencv2/imgproc.hpp>
+#include <optional>
 #include <random>
 
 #include "slam/objects/projection_search.h"
@@ -133,6 +136,125 @@ TEST(ProjectionSearch, PatchSearchFindsTheShiftedPatch) {
   EXPECT_LT((*found - (p + Eigen::Vector2d(shift.x, shift.y))).norm(), 0.35);
   // Nothing similar on the flat background.
   EXPECT_FALSE(PatchSearch(r.next, patch, Eigen::Vector2d(40, 40), options).has_value());
+}
+
+// A parabola's vertex from its samples; nothing along an axis whose
+// neighbour is unscored or where the peak sits on the grid's edge.
+TEST(ProjectionSearch, ParabolaPeakOffsetFindsTheVertex) {
+  // f(x, y) = 1 - 0.1 (x - 2.3)² - 0.2 (y - 0.6)², peak sample (2, 1).
+  cv::Mat scores(3, 5, CV_64F);
+  for (int y = 0; y < 3; ++y) {
+    for (int x = 0; x < 5; ++x)
+      scores.at<double>(y, x) = 1.0 - 0.1 * (x - 2.3) * (x - 2.3) - 0.2 * (y - 0.6) * (y - 0.6);
+  }
+  const Eigen::Vector2d o = ParabolaPeakOffset(scores, 2, 1);
+  EXPECT_NEAR(o.x(), 0.3, 1e-12);
+  EXPECT_NEAR(o.y(), -0.4, 1e-12);
+  EXPECT_EQ(ParabolaPeakOffset(scores, 2, 0).y(), 0.0);  // on the grid's edge
+  scores.at<double>(2, 2) = -2.0;                        // an unscored neighbour
+  EXPECT_EQ(ParabolaPeakOffset(scores, 2, 1).y(), 0.0);
+  EXPECT_NEAR(ParabolaPeakOffset(scores, 2, 1).x(), 0.3, 1e-12);
+}
+
+// The search correlates one bilinear region instead of a patch per offset:
+// its result is the brute-force search's (ExtractPatch and Ncc at every
+// offset, the same sub-pixel peak), near the image border too, where some offsets'
+// patches leave the image.
+TEST(ProjectionSearch, PatchSearchIsTheBruteForceSearch) {
+  const Rendered r = RenderMovingPatch(cv::Point2d(1.7, 2.2), 5);
+  ProjectionSearchOptions options;
+  const int h = options.patch_half_size;
+  const int rad = static_cast<int>(std::ceil(options.patch_search_radius_px));
+  auto brute_force = [&](const cv::Mat& image,
+                         const cv::Mat& patch,
+                         const Eigen::Vector2d& predicted) -> std::optional<Eigen::Vector2d> {
+    const int w = 2 * rad + 1;
+    cv::Mat scores(w, w, CV_64F, cv::Scalar(-2.0));
+    double best = -2.0;
+    int bx = 0, by = 0;
+    for (int dy = -rad; dy <= rad; ++dy) {
+      for (int dx = -rad; dx <= rad; ++dx) {
+        if (dx * dx + dy * dy > options.patch_search_radius_px * options.patch_search_radius_px)
+          continue;
+        const cv::Mat q = ExtractPatch(image, predicted + Eigen::Vector2d(dx, dy), h);
+        if (q.empty()) continue;
+        const double v = Ncc(patch, q);
+        scores.at<double>(dy + rad, dx + rad) = v;
+        if (v > best) {
+          best = v;
+          bx = dx;
+          by = dy;
+        }
+      }
+    }
+    if (best < options.min_ncc) return std::nullopt;
+    return predicted + (Eigen::Vector2d(bx, by) + ParabolaPeakOffset(scores, bx + rad, by + rad));
+  };
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> jitter(-3.0, 3.0);
+  int found = 0, compared = 0;
+  for (int k = 0; k < 200; ++k) {
+    const Eigen::Vector2d p(110.0 + 0.7 * k, 90.0 + 0.5 * k);
+    const cv::Mat patch = ExtractPatch(r.prev, p, h);
+    ASSERT_FALSE(patch.empty());
+    const Eigen::Vector2d predicted = p + Eigen::Vector2d(1.7 + jitter(rng), 2.2 + jitter(rng));
+    const auto fast = PatchSearch(r.next, patch, predicted, options);
+    const auto slow = brute_force(r.next, patch, predicted);
+    ASSERT_EQ(fast.has_value(), slow.has_value()) << k;
+    ++compared;
+    if (!fast) continue;
+    ++found;
+    EXPECT_NEAR(fast->x(), slow->x(), 1e-3) << k;
+    EXPECT_NEAR(fast->y(), slow->y(), 1e-3) << k;
+  }
+  EXPECT_GT(found, compared / 2);
+  // At the image border: offsets whose patch leaves the image are skipped.
+  cv::Mat edge(60, 80, CV_8UC1);
+  std::uniform_int_distribution<int> u(0, 255);
+  for (int y = 0; y < edge.rows; ++y) {
+    for (int x = 0; x < edge.cols; ++x) edge.at<uint8_t>(y, x) = static_cast<uint8_t>(u(rng));
+  }
+  cv::GaussianBlur(edge, edge, cv::Size(0, 0), 1.2);
+  const Eigen::Vector2d corner(h + 1.4, h + 2.3);
+  const cv::Mat patch = ExtractPatch(edge, corner, h);
+  ASSERT_FALSE(patch.empty());
+  const Eigen::Vector2d near_corner = corner + Eigen::Vector2d(0.6, -1.2);
+  const auto at_border = PatchSearch(edge, patch, near_corner, options);
+  const auto at_border_slow = brute_force(edge, patch, near_corner);
+  ASSERT_TRUE(at_border.has_value() && at_border_slow.has_value());
+  EXPECT_NEAR(at_border->x(), at_border_slow->x(), 1e-3);
+  EXPECT_NEAR(at_border->y(), at_border_slow->y(), 1e-3);
+  EXPECT_LT((*at_border - corner).norm(), 0.3);
+}
+
+// Shared pyramids give exactly the result of the images themselves.
+TEST(FlowAssociation, SparseFlowOnSharedPyramidsIsTheSameAsOnImages) {
+  const Rendered r = RenderMovingPatch(cv::Point2d(3.6, 1.9), 6);
+  const auto pts = InteriorGrid(r.object, 12, 9);
+  std::vector<Eigen::Vector2d> predicted;
+  for (const auto& p : pts) predicted.push_back(p + Eigen::Vector2d(3.0, 2.0));
+  const SparseFlowOptions options;
+  const auto on_images = TrackSparseFlow(r.prev, r.next, pts, options, &predicted);
+  const auto prev = SparseFlowPyramid(r.prev, options);
+  const auto next = SparseFlowPyramid(r.next, options);
+  ASSERT_TRUE(on_images.ok() && prev.ok() && next.ok());
+  const auto on_pyramids = TrackSparseFlow(*prev, *next, pts, options, &predicted);
+  ASSERT_TRUE(on_pyramids.ok());
+  ASSERT_EQ(on_images->size(), on_pyramids->size());
+  int tracked = 0;
+  for (size_t k = 0; k < pts.size(); ++k) {
+    ASSERT_EQ((*on_images)[k].has_value(), (*on_pyramids)[k].has_value()) << k;
+    if (!(*on_images)[k]) continue;
+    ++tracked;
+    EXPECT_EQ((*on_images)[k]->x(), (*on_pyramids)[k]->x()) << k;
+    EXPECT_EQ((*on_images)[k]->y(), (*on_pyramids)[k]->y()) << k;
+  }
+  EXPECT_GT(tracked, static_cast<int>(pts.size()) / 2);
+  // Bad input: an empty image, pyramids of different sizes.
+  EXPECT_FALSE(SparseFlowPyramid(cv::Mat(), options).ok());
+  const auto small = SparseFlowPyramid(cv::Mat(50, 60, CV_8UC1, cv::Scalar(9)), options);
+  ASSERT_TRUE(small.ok());
+  EXPECT_FALSE(TrackSparseFlow(*prev, *small, pts, options).ok());
 }
 
 TEST(ProjectionSearch, DescriptorSearchByProjection) {
