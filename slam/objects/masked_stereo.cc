@@ -19,9 +19,8 @@ std::optional<double> MaskedDisparity(const cv::Mat& left,
       left.size() != mask.size() || !std::isfinite(initial_disparity)) {
     return std::nullopt;
   }
-  const int h = std::clamp(static_cast<int>(std::lround(half_window)),
-                           options.min_half_window,
-                           options.max_half_window);
+  const int h = std::clamp(
+      static_cast<int>(std::lround(half_window)), options.min_half_window, options.max_half_window);
   const int cx = static_cast<int>(std::lround(uv.x()));
   const int cy = static_cast<int>(std::lround(uv.y()));
   const int d0 = static_cast<int>(std::lround(initial_disparity));
@@ -31,17 +30,22 @@ std::optional<double> MaskedDisparity(const cv::Mat& left,
   if (cx - h - (d0 + s + 1) < 0 || cx + h - (d0 - s - 1) >= left.cols) return std::nullopt;
   if (d0 - s - 1 < 0) return std::nullopt;
 
-  // Masked left pixels, zero-mean.
-  std::vector<int> xs, ys;
-  std::vector<double> a;
+  // Masked left pixels, zero-mean, with their right-image rows and their
+  // offsets from the window's centre (looked up once, not per disparity or
+  // iteration).
+  std::vector<int> xs;
+  std::vector<double> a, dxs, dys;
+  std::vector<const uint8_t*> right_rows;
   for (int y = cy - h; y <= cy + h; ++y) {
     const uint8_t* m = mask.ptr<uint8_t>(y);
     const uint8_t* l = left.ptr<uint8_t>(y);
     for (int x = cx - h; x <= cx + h; ++x) {
       if (m[x] == 0) continue;
       xs.push_back(x);
-      ys.push_back(y);
       a.push_back(l[x]);
+      dxs.push_back(x - cx);
+      dys.push_back(y - cy);
+      right_rows.push_back(right.ptr<uint8_t>(y));
     }
   }
   const int n = static_cast<int>(a.size());
@@ -65,7 +69,7 @@ std::optional<double> MaskedDisparity(const cv::Mat& left,
     const int d = d0 - s - 1 + j;
     double sum_b = 0.0, sum_bb = 0.0, sum_ab = 0.0;
     for (int k = 0; k < n; ++k) {
-      const double b = right.ptr<uint8_t>(ys[static_cast<size_t>(k)])[xs[static_cast<size_t>(k)] - d];
+      const double b = right_rows[static_cast<size_t>(k)][xs[static_cast<size_t>(k)] - d];
       sum_b += b;
       sum_bb += b * b;
       sum_ab += a[static_cast<size_t>(k)] * b;
@@ -100,12 +104,12 @@ std::optional<double> MaskedDisparity(const cv::Mat& left,
   // disparity of the window's centroid rather than of the point.
   double g = 1.0, o = 0.0, gx = 0.0, gy = 0.0;
   auto sample = [&](int k, double* b, double* slope) {
-    const double x = xs[static_cast<size_t>(k)] - d - gx * (xs[static_cast<size_t>(k)] - cx) -
-                     gy * (ys[static_cast<size_t>(k)] - cy);
+    const size_t i = static_cast<size_t>(k);
+    const double x = xs[i] - d - gx * dxs[i] - gy * dys[i];
     const int x0 = static_cast<int>(std::floor(x));
     if (x0 < 1 || x0 + 2 >= right.cols) return false;
     const double t = x - x0;
-    const uint8_t* row = right.ptr<uint8_t>(ys[static_cast<size_t>(k)]);
+    const uint8_t* row = right_rows[i];
     *b = (1.0 - t) * row[x0] + t * row[x0 + 1];
     // Central-difference slope, interpolated.
     *slope = 0.5 * ((1.0 - t) * (row[x0 + 1] - row[x0 - 1]) + t * (row[x0 + 2] - row[x0]));
@@ -133,10 +137,13 @@ std::optional<double> MaskedDisparity(const cv::Mat& left,
     for (int k = 0; k < n; ++k) {
       if (!sample(k, &b, &slope)) return std::nullopt;
       const double r = g * b + o - (a[static_cast<size_t>(k)] + mean_a);
-      const double dx = xs[static_cast<size_t>(k)] - cx, dy = ys[static_cast<size_t>(k)] - cy;
+      const double dx = dxs[static_cast<size_t>(k)], dy = dys[static_cast<size_t>(k)];
       Vector5d j;
       j << -g * slope, -g * slope * dx, -g * slope * dy, b, 1.0;
-      h_mat += j * j.transpose();
+      // The lower triangle only: LDLT reads no other.
+      for (int row = 0; row < 5; ++row) {
+        for (int col = 0; col <= row; ++col) h_mat(row, col) += j(row) * j(col);
+      }
       rhs -= j * r;
     }
     // A weak prior towards zero slopes keeps the normal equations regular
