@@ -13,18 +13,20 @@ bool IsPanopticType(const cv::Mat& mask) {
   return mask.type() == CV_16UC1 || mask.type() == CV_32SC1;
 }
 
-// Calls fn(x, y, id) for every labelled pixel.
+// Calls fn(x, y, id) for every labelled pixel (of `roi`, when given).
 template <typename Fn>
-void ForEachPixel(const cv::Mat& mask, Fn&& fn) {
+void ForEachPixel(const cv::Mat& mask, Fn&& fn, cv::Rect roi = cv::Rect()) {
+  const cv::Rect full(0, 0, mask.cols, mask.rows);
+  roi = roi.empty() ? full : (roi & full);
   if (mask.type() == CV_16UC1) {
-    for (int y = 0; y < mask.rows; ++y) {
+    for (int y = roi.y; y < roi.y + roi.height; ++y) {
       const uint16_t* row = mask.ptr<uint16_t>(y);
-      for (int x = 0; x < mask.cols; ++x) fn(x, y, static_cast<int64_t>(row[x]));
+      for (int x = roi.x; x < roi.x + roi.width; ++x) fn(x, y, static_cast<int64_t>(row[x]));
     }
   } else {
-    for (int y = 0; y < mask.rows; ++y) {
+    for (int y = roi.y; y < roi.y + roi.height; ++y) {
       const int32_t* row = mask.ptr<int32_t>(y);
-      for (int x = 0; x < mask.cols; ++x) {
+      for (int x = roi.x; x < roi.x + roi.width; ++x) {
         if (row[x] >= 0) fn(x, y, static_cast<int64_t>(row[x]));
       }
     }
@@ -81,8 +83,16 @@ std::vector<Segment> ExtractSegments(const cv::Mat& mask, int min_pixels, bool t
     int x0 = 1 << 30, y0 = 1 << 30, x1 = -1, y1 = -1;
   };
   std::map<int64_t, Acc> acc;
+  // Labels come in runs along a row: look the map up only when the id changes
+  // (its elements do not move on insertion).
+  int64_t last_id = -1;
+  Acc* last = nullptr;
   ForEachPixel(mask, [&](int x, int y, int64_t id) {
-    Acc& a = acc[id];
+    if (last == nullptr || id != last_id) {
+      last = &acc[id];
+      last_id = id;
+    }
+    Acc& a = *last;
     ++a.n;
     a.x0 = std::min(a.x0, x);
     a.y0 = std::min(a.y0, y);
@@ -104,12 +114,19 @@ std::vector<Segment> ExtractSegments(const cv::Mat& mask, int min_pixels, bool t
 }
 
 cv::Mat SegmentMask(const cv::Mat& mask, const PanopticLabel& label) {
+  return SegmentMask(mask, label, cv::Rect());
+}
+
+cv::Mat SegmentMask(const cv::Mat& mask, const PanopticLabel& label, const cv::Rect& roi) {
   CHECK(IsPanopticType(mask)) << "panoptic mask must be CV_16UC1 or CV_32SC1";
   cv::Mat out(mask.size(), CV_8UC1, cv::Scalar(0));
   const int64_t target = MakePanopticId(label.class_id, label.instance_id);
-  ForEachPixel(mask, [&](int x, int y, int64_t id) {
-    if (id == target) out.at<uint8_t>(y, x) = 255;
-  });
+  ForEachPixel(
+      mask,
+      [&](int x, int y, int64_t id) {
+        if (id == target) out.at<uint8_t>(y, x) = 255;
+      },
+      roi);
   return out;
 }
 

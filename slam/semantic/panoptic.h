@@ -72,5 +72,8 @@ std::vector<Segment> ExtractSegments(const cv::Mat& mask,
 
 // Binary CV_8UC1 mask (255 inside) of the pixels carrying `label`.
 cv::Mat SegmentMask(const cv::Mat& mask, const PanopticLabel& label);
+// The same mask, looking for `label` only inside `roi` (empty: everywhere):
+// with a Segment's tight box from ExtractSegments, the same result.
+cv::Mat SegmentMask(const cv::Mat& mask, const PanopticLabel& label, const cv::Rect& roi);
 
 }  // namespace twist::semantic

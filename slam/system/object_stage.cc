@@ -193,7 +193,7 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
       semantic::Detection d;
       d.label = s.label;
       d.box = cv::Rect2d(s.box);
-      d.mask = semantic::SegmentMask(in.panoptic, s.label);
+      d.mask = semantic::SegmentMask(in.panoptic, s.label, s.box);  // scans the box only
       dets.push_back(std::move(d));
     } else if (planes_.count(c) > 0 && s.label.instance_id == 0 &&
                s.num_pixels >= options_.min_segment_pixels) {

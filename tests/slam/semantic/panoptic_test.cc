@@ -2,6 +2,10 @@
 
 #include <gtest/gtest.h>
 
+#include <map>
+#include <opencv2/core.hpp>
+#include <random>
+
 namespace twist::semantic {
 namespace {
 
@@ -53,6 +57,53 @@ TEST(Panoptic, ExtractsSegmentsWithBoxes) {
   EXPECT_EQ(things[0].label, (PanopticLabel{26, 1}));
   const cv::Mat seg = SegmentMask(mask, {26, 2});
   EXPECT_EQ(cv::countNonZero(seg), 12);
+}
+
+// Segments and their masks on a mask of blobs and scattered pixels (label
+// runs of every length), in both panoptic types: counts and tight boxes as
+// a per-pixel tally gives them, and each segment's mask, scanned in its box
+// only, is the whole-image mask of its label.
+TEST(Panoptic, SegmentsAndTheirMasksMatchAPerPixelTally) {
+  std::mt19937_64 rng(3);
+  std::uniform_int_distribution<int> pick(0, 5);
+  const int ids[] = {7000, 26001, 26002, 24001, 11000, 26003};
+  cv::Mat mask16(40, 60, CV_16UC1, cv::Scalar(7000));
+  for (int k = 0; k < 12; ++k) {
+    std::uniform_int_distribution<int> x(0, 55), y(0, 35), size(1, 9);
+    mask16(cv::Rect(x(rng), y(rng), size(rng), size(rng)) & cv::Rect(0, 0, 60, 40))
+        .setTo(cv::Scalar(ids[pick(rng)]));
+  }
+  for (int k = 0; k < 80; ++k) {
+    std::uniform_int_distribution<int> x(0, 59), y(0, 39);
+    mask16.at<uint16_t>(y(rng), x(rng)) = static_cast<uint16_t>(ids[pick(rng)]);
+  }
+  cv::Mat mask32;
+  mask16.convertTo(mask32, CV_32SC1);
+  mask32.at<int32_t>(0, 0) = -1;  // unlabelled in the 32-bit form
+  for (const cv::Mat& mask : {mask16, mask32}) {
+    std::map<int, std::pair<int, cv::Rect>> tally;  // id -> (pixels, box)
+    for (int y = 0; y < mask.rows; ++y) {
+      for (int x = 0; x < mask.cols; ++x) {
+        const int id = mask.type() == CV_16UC1 ? mask.at<uint16_t>(y, x) : mask.at<int32_t>(y, x);
+        if (id < 0) continue;
+        auto& [n, box] = tally[id];
+        box = n == 0 ? cv::Rect(x, y, 1, 1) : (box | cv::Rect(x, y, 1, 1));
+        ++n;
+      }
+    }
+    const std::vector<Segment> segments = ExtractSegments(mask);
+    ASSERT_EQ(segments.size(), tally.size());
+    for (const Segment& s : segments) {
+      const int id = s.label.class_id * 1000 + s.label.instance_id;
+      ASSERT_EQ(tally.count(id), 1u) << id;
+      EXPECT_EQ(s.num_pixels, tally[id].first) << id;
+      EXPECT_EQ(s.box, tally[id].second) << id;
+      const cv::Mat whole = SegmentMask(mask, s.label);
+      const cv::Mat boxed = SegmentMask(mask, s.label, s.box);
+      EXPECT_EQ(cv::countNonZero(whole), s.num_pixels) << id;
+      EXPECT_EQ(cv::countNonZero(whole != boxed), 0) << id;
+    }
+  }
 }
 
 }  // namespace
