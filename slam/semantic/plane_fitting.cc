@@ -73,17 +73,25 @@ absl::Status PlaneRansacOptions::Validate() const {
 
 namespace {
 
+// Calls fn(k) for each point k within `threshold` of `plane`.
+template <typename Fn>
+void ForEachInlier(const std::vector<Eigen::Vector3d>& points,
+                   const Eigen::Vector4d& plane,
+                   double threshold,
+                   Fn&& fn) {
+  const Eigen::Vector3d n = plane.head<3>();
+  const double inv_norm = 1.0 / n.norm();
+  for (size_t k = 0; k < points.size(); ++k) {
+    if (std::abs((n.dot(points[k]) + plane(3)) * inv_norm) <= threshold) fn(k);
+  }
+}
+
 std::vector<int> Inliers(const std::vector<Eigen::Vector3d>& points,
                          const Eigen::Vector4d& plane,
                          double threshold) {
   std::vector<int> inliers;
-  const Eigen::Vector3d n = plane.head<3>();
-  const double inv_norm = 1.0 / n.norm();
-  for (size_t k = 0; k < points.size(); ++k) {
-    if (std::abs((n.dot(points[k]) + plane(3)) * inv_norm) <= threshold) {
-      inliers.push_back(static_cast<int>(k));
-    }
-  }
+  ForEachInlier(
+      points, plane, threshold, [&](size_t k) { inliers.push_back(static_cast<int>(k)); });
   return inliers;
 }
 
@@ -93,11 +101,7 @@ int CountInliers(const std::vector<Eigen::Vector3d>& points,
                  const Eigen::Vector4d& plane,
                  double threshold) {
   int count = 0;
-  const Eigen::Vector3d n = plane.head<3>();
-  const double inv_norm = 1.0 / n.norm();
-  for (const Eigen::Vector3d& p : points) {
-    if (std::abs((n.dot(p) + plane(3)) * inv_norm) <= threshold) ++count;
-  }
+  ForEachInlier(points, plane, threshold, [&](size_t) { ++count; });
   return count;
 }
 
