@@ -44,6 +44,9 @@ absl::Status CheckObservation(const BaObservation& o,
   if (!(o.sigma_px > 0.0) || !o.uv.allFinite()) {
     return absl::InvalidArgumentError(where + ": needs a finite uv and sigma_px > 0");
   }
+  if (!(o.disparity_noise_ratio >= 0.0) || !std::isfinite(o.disparity_noise_ratio)) {
+    return absl::InvalidArgumentError(where + ": needs a finite disparity_noise_ratio >= 0");
+  }
   return absl::OkStatus();
 }
 
@@ -68,9 +71,10 @@ std::optional<double> DynamicResidual(const geometry::StereoCamera& cam,
           camera_from_world * (world_from_object * p_o), &uvr, nullptr, 1e-3)) {
     return std::nullopt;
   }
-  comps->push_back(o.uv.x() - uvr.x());
-  comps->push_back(o.uv.y() - uvr.y());
-  if (o.u_right >= 0.0) comps->push_back(o.u_right - uvr.z());
+  const Eigen::Vector3d r(o.uv.x() - uvr.x(), o.uv.y() - uvr.y(), o.u_right - uvr.z());
+  comps->push_back(r.x());
+  comps->push_back(r.y());
+  if (o.u_right >= 0.0) comps->push_back((StereoWhitening(o.disparity_noise_ratio) * r).z());
   return 0.0;
 }
 
@@ -84,6 +88,10 @@ absl::Status DynamicBaProblem::Validate() const {
             observations[i], nk, static_cast<int>(points.size()), Where("static observation", i));
         !s.ok()) {
       return s;
+    }
+    if (observations[i].disparity_noise_ratio != 0.0) {
+      return absl::InvalidArgumentError(Where("static observation", i) +
+                                        ": static terms take no disparity_noise_ratio");
     }
   }
   for (size_t k = 0; k < objects.size(); ++k) {
@@ -295,11 +303,12 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
       const double s = 1.0 / (options.mad_sigma_for_dynamic ? mad_sigma : o.sigma_px);
       ceres::CostFunction* cost;
       if (o.u_right >= 0.0) {
+        const Eigen::Matrix3d w = StereoWhitening(o.disparity_noise_ratio);
         cost = options.use_autodiff
                    ? optimization::DynamicReprojectionFunctor<3>::Create(
-                         cam, Measurement<3>(o), s, op.projector)
+                         cam, Measurement<3>(o), s, op.projector, w)
                    : static_cast<ceres::CostFunction*>(new optimization::DynamicReprojectionCost<3>(
-                         cam, Measurement<3>(o), s, op.projector));
+                         cam, Measurement<3>(o), s, op.projector, w));
       } else {
         cost = options.use_autodiff
                    ? optimization::DynamicReprojectionFunctor<2>::Create(

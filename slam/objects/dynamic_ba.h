@@ -55,6 +55,13 @@ struct BaObservation {
   Eigen::Vector2d uv = Eigen::Vector2d::Zero();
   double u_right = -1.0;  // < 0: mono
   double sigma_px = 1.0;  // standard deviation of the measurement
+  // Dynamic stereo observations: the disparity's own noise as a multiple k
+  // of the position's (TwistObservation::disparity_noise_ratio). The
+  // residual is then whitened as the twist estimator does (StereoWhitening:
+  // (r_u, r_v, (r_ur − r_u)/k)), since u_right = u − d carries u's error.
+  // 0: the three rows independent, each with the position's noise. Static
+  // observations take 0.
+  double disparity_noise_ratio = 0.0;
 };
 
 struct BaObjectFrame {

@@ -94,6 +94,7 @@ std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
         obs.point = it->second;
         obs.uv = o.uv;
         obs.u_right = o.u_right;
+        obs.disparity_noise_ratio = o.disparity_noise_ratio;
         obs.sigma_px = options.sigma_px;
         ba.observations.push_back(obs);
       }

@@ -430,7 +430,8 @@ void ObjectTracker::AddNewPoints(const FrameContext& ctx,
     p.last_uv = kps.uv[k];
     p.seen_last_frame = true;
     p.num_observations = 1;
-    o->pending_observations.push_back({p.id, kps.uv[k], u_right});
+    o->pending_observations.push_back(
+        {p.id, kps.uv[k], u_right, StepDisparityNoiseRatio(StereoLevelScale(kps, k))});
     o->points.push_back(std::move(p));
     taken.push_back(kps.uv[k]);
   }
@@ -501,7 +502,8 @@ bool ObjectTracker::Create(const FrameContext& ctx,
     p.last_uv = kps.uv[k];
     p.seen_last_frame = true;
     p.num_observations = 1;
-    o->pending_observations.push_back({p.id, kps.uv[k], u_rights[kept[m]]});
+    o->pending_observations.push_back(
+        {p.id, kps.uv[k], u_rights[kept[m]], StepDisparityNoiseRatio(StereoLevelScale(kps, k))});
     o->points.push_back(std::move(p));
   }
   o->cluster_id = det.cluster_id;
@@ -942,7 +944,8 @@ bool ObjectTracker::Track(const FrameContext& ctx,
     p.last_uv = obs[j].uv;
     p.seen_last_frame = true;
     ++p.num_observations;
-    o->pending_observations.push_back({p.id, obs[j].uv, obs[j].u_right});
+    o->pending_observations.push_back(
+        {p.id, obs[j].uv, obs[j].u_right, obs[j].disparity_noise_ratio});
     occupied.push_back(obs[j].uv);
   }
   AddNewPoints(ctx, det, o, occupied);
@@ -1060,7 +1063,8 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
     p.last_uv = obs[j].uv;
     p.seen_last_frame = true;
     ++p.num_observations;
-    o->pending_observations.push_back({p.id, obs[j].uv, obs[j].u_right});
+    o->pending_observations.push_back(
+        {p.id, obs[j].uv, obs[j].u_right, obs[j].disparity_noise_ratio});
     occupied.push_back(obs[j].uv);
   }
   AddNewPoints(ctx, det, o, occupied);

@@ -65,6 +65,11 @@ struct ObjectPointObservation {
   int64_t point_id = 0;
   Eigen::Vector2d uv = Eigen::Vector2d::Zero();
   double u_right = -1.0;  // < 0: mono
+  // The disparity's noise as a multiple of the position's, as the step's
+  // estimate weighed it (TwistObservation::disparity_noise_ratio); the
+  // dynamic BA weighs the observation the same way. 0: not known (the rows
+  // independent); unused for mono.
+  double disparity_noise_ratio = 0.0;
 };
 
 struct ObjectPoseSample {

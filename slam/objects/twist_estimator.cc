@@ -176,10 +176,13 @@ std::optional<Eigen::Vector3d> TwistResidual(const geometry::StereoCamera& camer
 }
 
 Eigen::Matrix3d StereoWhitening(const TwistObservation& obs) {
+  return obs.stereo() ? StereoWhitening(obs.disparity_noise_ratio) : Eigen::Matrix3d::Identity();
+}
+
+Eigen::Matrix3d StereoWhitening(double k) {
   Eigen::Matrix3d w = Eigen::Matrix3d::Identity();
-  if (!obs.stereo() || !(obs.disparity_noise_ratio > 0.0)) return w;
+  if (!(k > 0.0)) return w;
   // The inverse of S's Cholesky factor L = [1 0 0; 0 1 0; 1 0 k].
-  const double k = obs.disparity_noise_ratio;
   w(2, 0) = -1.0 / k;
   w(2, 2) = 1.0 / k;
   return w;

@@ -157,6 +157,8 @@ double ChiSquareQuantile(int dof, double confidence);
 // W = L⁻¹ maps the residual to (r_u, r_v, (r_ur − r_u)/k), each with noise σ.
 // The identity for a mono observation or k = 0.
 Eigen::Matrix3d StereoWhitening(const TwistObservation& observation);
+// The same for a stereo observation with the ratio k given (k <= 0: identity).
+Eigen::Matrix3d StereoWhitening(double disparity_noise_ratio);
 
 // Whitening W of one observation's residual at a given twist and pixel scale
 // σ. For an exact point, StereoWhitening. For a point with its own error g

@@ -376,14 +376,17 @@ void WriteObservations(const std::vector<objects::ObjectPointObservation>& obs, 
     w->Pod(o.point_id);
     WriteVec(o.uv, w);
     w->Pod(o.u_right);
+    w->Pod(o.disparity_noise_ratio);
   }
 }
-std::vector<objects::ObjectPointObservation> ReadObservations(BinaryReader* r) {
-  std::vector<objects::ObjectPointObservation> obs(r->Count(32));
+std::vector<objects::ObjectPointObservation> ReadObservations(BinaryReader* r, uint32_t version) {
+  std::vector<objects::ObjectPointObservation> obs(r->Count(version >= 11 ? 40 : 32));
   for (auto& o : obs) {
     o.point_id = r->Pod<int64_t>();
     o.uv = ReadVec<Eigen::Vector2d>(r);
     o.u_right = r->Pod<double>();
+    if (version >= 11) o.disparity_noise_ratio = r->Pod<double>();
+    if (!std::isfinite(o.disparity_noise_ratio) || o.disparity_noise_ratio < 0.0) r->Fail();
   }
   return obs;
 }
@@ -497,12 +500,12 @@ objects::TrackedObject ReadTrackedObject(BinaryReader* r, uint32_t version) {
     s.timestamp_ns = r->Pod<int64_t>();
     s.world_from_object = r->Pose();
     s.twist_step = ReadVec<geometry::Vector6d>(r);
-    s.observations = ReadObservations(r);
+    s.observations = ReadObservations(r, version);
     if (version >= 6) s.held = r->Pod<uint8_t>() != 0;
     o.history.push_back(std::move(s));
   }
   o.next_point_id = r->Pod<int64_t>();
-  o.pending_observations = ReadObservations(r);
+  o.pending_observations = ReadObservations(r, version);
   o.insignificant_steps = r->Pod<int32_t>();
   o.stationary = r->Pod<uint8_t>() != 0;
   o.last_num_inliers = r->Pod<int32_t>();

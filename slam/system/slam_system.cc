@@ -51,7 +51,11 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // 10: + a block before the trailer, its byte length last: the tracker's
 // last inlier count (TrackerOptions::research_inlier_ratio). Older files load
 // with none (no second local-map search on the first frame after loading).
-constexpr uint32_t kFormatVersion = 10;
+// 11: + each object observation's disparity noise ratio
+// (ObjectPointObservation::disparity_noise_ratio, the dynamic BA's stereo
+// whitening). Older files load with 0: the BA window they bring weighs its
+// disparities as before, until the window has slid past them.
+constexpr uint32_t kFormatVersion = 11;
 // Covisible keyframes in the local BA with dense keyframes (SlamOptions).
 constexpr int kDenseLocalBaKeyFrames = 8;
 

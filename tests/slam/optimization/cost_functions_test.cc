@@ -388,9 +388,29 @@ void CheckDynamicReprojection(unsigned seed) {
     const ObservationVector<N> observed =
         ProjectToObservation<N>(camera, p_c) + random.Noise<N>(3.0);
     const double sqrt_info = random.Uniform(0.3, 1.0);
-    DynamicReprojectionCost<N> analytic(camera, observed, sqrt_info, projector);
+    // Every other trial with a whitening W that mixes the rows (a random
+    // lower-triangular matrix, like objects::StereoWhitening's).
+    Eigen::Matrix<double, N, N> whitening = Eigen::Matrix<double, N, N>::Identity();
+    if (trial % 2 == 1) {
+      for (int r = 0; r < N; ++r) {
+        whitening(r, r) = random.Uniform(0.5, 3.0);
+        for (int c = 0; c < r; ++c) whitening(r, c) = random.Uniform(-3.0, 3.0);
+      }
+    }
+    DynamicReprojectionCost<N> analytic(camera, observed, sqrt_info, projector, whitening);
     std::unique_ptr<ceres::CostFunction> autodiff(
-        DynamicReprojectionFunctor<N>::Create(camera, observed, sqrt_info, projector));
+        DynamicReprojectionFunctor<N>::Create(camera, observed, sqrt_info, projector, whitening));
+    {
+      // The whitened residual is W times the plain one.
+      const std::vector<double> cw = PoseParams(camera_from_world),
+                                wo = PoseParams(world_from_object);
+      const double* params[] = {cw.data(), xi.data(), wo.data(), p_o.data()};
+      ObservationVector<N> plain, whitened;
+      ASSERT_TRUE(DynamicReprojectionCost<N>(camera, observed, sqrt_info, projector)
+                      .Evaluate(params, plain.data(), nullptr));
+      ASSERT_TRUE(analytic.Evaluate(params, whitened.data(), nullptr));
+      ExpectNear(whitened, whitening * plain, 1e-9, "whitened residual");
+    }
     CheckCostPair(analytic,
                   *autodiff,
                   {PoseParams(camera_from_world),

@@ -395,7 +395,7 @@ size_t DenseKeyFramesOffset(SessionConfig config) {
 }
 
 // A format-3 file (written before the objects were saved) still loads. Without
-// the object stage a format-10 file less its last block (before the trailer)
+// the object stage a format-11 (= 10) file less its last block (before the trailer)
 // and its dense_keyframes byte is a format-4 file (formats 5 to 8 only add to
 // the object state), and a format-3 file plus one flag byte before the
 // trailer, so one is made from the other.
@@ -416,8 +416,10 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   uint32_t version = 0;
   std::memcpy(&version, &data[8], sizeof(version));
-  ASSERT_EQ(version, 10u);
-  // Format 10's block ends with its length, before the 8-byte trailer.
+  ASSERT_EQ(version, 11u);
+  // Without the object stage a format-11 file is a format-10 one (format 11
+  // only adds to the objects' observations). Format 10's block ends with its
+  // length, before the 8-byte trailer.
   uint64_t block = 0;
   std::memcpy(&block, &data[data.size() - 16], sizeof(block));
   ASSERT_LT(block + 16, data.size());
