@@ -51,6 +51,7 @@ Window MakeWindow(double noise_px, uint64_t seed, double car_disparity_noise_px 
                      const Eigen::Vector3d& x,
                      int kf,
                      int idx,
+                     bool car,
                      std::vector<BaObservation>* out) {
     Eigen::Vector3d uvr;
     if (!p.camera.ProjectStereoChecked(camera_from_point_frame * x, &uvr, nullptr, 1.0)) return;
@@ -60,7 +61,7 @@ Window MakeWindow(double noise_px, uint64_t seed, double car_disparity_noise_px 
     o.point = idx;
     o.uv = uvr.head<2>() + Eigen::Vector2d(g(rng), g(rng));
     o.sigma_px = std::max(noise_px, 0.3);
-    if (out != &p.observations && car_disparity_noise_px >= 0.0) {
+    if (car && car_disparity_noise_px >= 0.0) {
       o.u_right = uvr.z() + (o.uv.x() - uvr.x()) + gd(rng);
       o.disparity_noise_ratio = car_disparity_noise_px / o.sigma_px;
     } else {
@@ -82,7 +83,7 @@ Window MakeWindow(double noise_px, uint64_t seed, double car_disparity_noise_px 
     p.points.push_back(sp);
     w.gt_points.push_back(x);
     for (int i = 0; i < 10; ++i)
-      observe(w.gt_camera_from_world[static_cast<size_t>(i)], x, i, j, &p.observations);
+      observe(w.gt_camera_from_world[static_cast<size_t>(i)], x, i, j, false, &p.observations);
   }
   // The car.
   BaObject car;
@@ -106,6 +107,7 @@ Window MakeWindow(double noise_px, uint64_t seed, double car_disparity_noise_px 
               car.points_in_object[j],
               i,
               static_cast<int>(j),
+              true,
               &car.observations);
     }
     pose = SE3d::Exp(step) * pose;
