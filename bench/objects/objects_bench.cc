@@ -82,6 +82,12 @@ double Percentile(std::vector<double> v, double p) {
   return v[i];
 }
 
+double Mean(const std::vector<double>& v) {
+  double m = 0.0;
+  for (double x : v) m += x / static_cast<double>(v.size());
+  return m;
+}
+
 std::string Stats(const std::vector<double>& v) {
   std::ostringstream s;
   s << "{\"median\": " << Percentile(v, 0.5) << ", \"p95\": " << Percentile(v, 0.95)
@@ -423,9 +429,7 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "objects_bench: engine run: %s\n", e.status().ToString().c_str());
       return 1;
     }
-    double mean_total = 0.0, mean_tracked = 0.0;
-    for (double t : e->total_ms) mean_total += t / static_cast<double>(e->total_ms.size());
-    for (double n : e->num_tracked) mean_tracked += n / static_cast<double>(e->num_tracked.size());
+    const double mean_total = Mean(e->total_ms), mean_tracked = Mean(e->num_tracked);
     const double median = Percentile(e->total_ms, 0.5);
     std::printf(
         "engine on '%s', %s mapping (%d frames, object BA window %d): stream %.1f frames/s "
@@ -463,23 +467,18 @@ int main(int argc, char** argv) {
     for (size_t k = 0; k < e->total_ms.size(); ++k) {
       (e->num_tracked[k] <= split ? few_ms : many_ms).push_back(e->total_ms[k]);
     }
-    auto mean_of = [](const std::vector<double>& v) {
-      double m = 0.0;
-      for (double x : v) m += x / static_cast<double>(v.size());
-      return m;
-    };
     std::printf(
         "  frames with <= %d tracked objects: %zu, Process %.1f ms median, %.1f mean (= %.1f "
         "frames/s); with more: %zu, %.1f median, %.1f mean (= %.1f frames/s)\n",
         split,
         few_ms.size(),
         Percentile(few_ms, 0.5),
-        mean_of(few_ms),
-        few_ms.empty() ? 0.0 : 1000.0 / mean_of(few_ms),
+        Mean(few_ms),
+        few_ms.empty() ? 0.0 : 1000.0 / Mean(few_ms),
         many_ms.size(),
         Percentile(many_ms, 0.5),
-        mean_of(many_ms),
-        many_ms.empty() ? 0.0 : 1000.0 / mean_of(many_ms));
+        Mean(many_ms),
+        many_ms.empty() ? 0.0 : 1000.0 / Mean(many_ms));
     json << ", \"engine_" << mode_name << "\": {\"scenario\": \"" << engine_scenario
          << "\", \"frames\": " << e->frames
          << ", \"stream_frames_per_s\": " << (e->stream_s > 0.0 ? e->frames / e->stream_s : 0.0)

@@ -256,7 +256,6 @@ TEST(DynamicBa, TheDisparitysOwnNoiseWeighsTheObjectsDepth) {
   for (int seed = 1; seed <= kSeeds; ++seed) {
     Window w = MakeWindow(1.0, 40 + seed, 0.1);
     Perturb(&w, 60 + seed);
-    // The camera held at its true poses, as the engine's object BA holds it.
     for (size_t i = 0; i < w.problem.keyframes.size(); ++i) {
       w.problem.keyframes[i].camera_from_world = w.gt_camera_from_world[i];
       w.problem.keyframes[i].fixed = true;
