@@ -75,5 +75,8 @@ cv::Mat SegmentMask(const cv::Mat& mask, const PanopticLabel& label);
 // The same mask, looking for `label` only inside `roi` (empty: everywhere):
 // with a Segment's tight box from ExtractSegments, the same result.
 cv::Mat SegmentMask(const cv::Mat& mask, const PanopticLabel& label, const cv::Rect& roi);
+// Binary CV_8UC1 mask (255 inside) of the pixels of class `class_id`, any
+// instance.
+cv::Mat ClassMask(const cv::Mat& mask, int class_id);
 
 }  // namespace twist::semantic

@@ -14,6 +14,7 @@
 #include "slam/features/stereo_matcher.h"
 #include "slam/objects/dynamic_ba.h"
 #include "slam/objects/joint_frames.h"
+#include "slam/objects/masked_stereo.h"
 #include "slam/objects/object_ba.h"
 #include "slam/semantic/panoptic.h"
 #include "slam/system/binary_io.h"
@@ -160,21 +161,40 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
 
   // Stereo keypoints in the world, and plane points per plane class.
   std::vector<std::optional<Eigen::Vector3d>> p_world(n);
+  const bool masked_planes =
+      options_.masked_plane_stereo && !in.right.empty() && !in.panoptic.empty();
+  std::map<int, cv::Mat> class_masks;  // plane class -> its mask, built on first use
   for (int i = 0; i < n; ++i) {
     if (f.u_right[i] < 0.0f) continue;
-    const auto p = cam.TriangulateStereo(
+    auto p = cam.TriangulateStereo(
         f.keypoints[i].pt.x, f.keypoints[i].pt.y, f.u_right[i], options_.max_plane_depth_m);
     if (!p) continue;
     p_world[i] = world_from_camera * *p;
     const int cls = semantic::ClassOf(f.labels[i]);
     auto it = planes_.find(cls);
     if (it == planes_.end() || !f.is_static[i]) continue;
+    if (masked_planes) {
+      auto mask = class_masks.find(cls);
+      if (mask == class_masks.end())
+        mask = class_masks.emplace(cls, semantic::ClassMask(in.panoptic, cls)).first;
+      const Eigen::Vector2d uv(f.keypoints[i].pt.x, f.keypoints[i].pt.y);
+      const std::optional<double> d = objects::MaskedDisparity(in.left,
+                                                               in.right,
+                                                               mask->second,
+                                                               uv,
+                                                               uv.x() - f.u_right[i],
+                                                               options_.plane_stereo_half_px);
+      if (!d || !(*d > 0.0)) continue;
+      p = cam.TriangulateStereo(uv.x(), uv.y(), uv.x() - *d, options_.max_plane_depth_m);
+      if (!p) continue;
+    }
+    const Eigen::Vector3d p_plane = world_from_camera * *p;
     // Depth noise z² σ_d s / (f b) along the ray, s = the level's scale.
     const double sigma_z = p->z() * p->z() * options_.plane_disparity_sigma_px *
                            std::pow(config_.options.scale_factor, f.keypoints[i].octave) /
                            (cam.fx * cam.baseline);
     semantic::StereoPlanePoint sp;
-    sp.point = *p_world[i];
+    sp.point = p_plane;
     sp.ray = world_from_camera.so3() * p->normalized();
     sp.sigma_along_m = sigma_z * p->norm() / p->z();
     it->second.points.push_back(sp);

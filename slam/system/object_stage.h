@@ -59,6 +59,18 @@ struct ObjectStageOptions {
   // coarser levels): with the viewing ray it weights the point in the plane's
   // refinement (semantic::StereoPlanePoint, RefinePlaneWeighted).
   double plane_disparity_sigma_px = 0.5;
+  // A plane point's disparity is measured again on level 0 with the block
+  // restricted to its class's mask (objects::MaskedDisparity, as the object
+  // points are), around the engine matcher's value; a point whose masked
+  // measurement fails is not used for the plane. Needs the right image
+  // (ObjectStageInput::right); without it the matcher's disparity is used.
+  // The matcher's blocks on the road are biased by +0.03 px on level 0 to
+  // +0.6 px on level 6 (slanted ground, neighbours in the block); the road
+  // plane took that as a few millimetres of height and a pitch of ~0.03°,
+  // which a planar car's depth multiplies by its distance over its height
+  // below the camera (docs/objects.md §37).
+  bool masked_plane_stereo = true;
+  double plane_stereo_half_px = 5.5;  // the masked block's half size (level-0 pixels)
   // Dynamic BA over the last frames (0: off). The window is also bounded by
   // SlamOptions::temporal_window_s. SlamSystem sets it from
   // SlamOptions::object_ba_window_frames (10 by default; the solve is

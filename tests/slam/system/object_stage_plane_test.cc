@@ -1,0 +1,142 @@
+// The road plane of the object stage (the parent of every planar car) on
+// rendered frames with the true camera: the plane points' disparities
+// measured on the road's mask (ObjectStageOptions::masked_plane_stereo, the
+// default) against the engine matcher's own.
+#include <glog/logging.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <opencv2/imgproc.hpp>
+#include <optional>
+#include <vector>
+
+#include "slam/features/orb_extractor.h"
+#include "slam/features/stereo_matcher.h"
+#include "slam/semantic/panoptic.h"
+#include "slam/sim/depth_truth.h"
+#include "slam/sim/renderer.h"
+#include "slam/sim/scenarios.h"
+#include "slam/system/object_stage.h"
+
+namespace twist {
+namespace {
+
+using geometry::SE3d;
+
+struct PlaneError {
+  double height_m = 0.0;   // camera height above the plane minus the truth
+  double pitch_deg = 0.0;  // the plane's slope along the optical axis
+};
+
+// The last reported road plane of a stage, in the camera frame of
+// `world_from_camera`, against the generator's level road kCameraHeight
+// below the camera (the camera drives level along z).
+std::optional<PlaneError> RoadError(const std::optional<Eigen::Vector4d>& plane,
+                                    const SE3d& world_from_camera) {
+  if (!plane) return std::nullopt;
+  Eigen::Vector4d p = *plane / plane->head<3>().norm();
+  // In the camera frame: n_c = R^T n, d_c = n·t + d.
+  const Eigen::Vector3d n_c = world_from_camera.rotation().transpose() * p.head<3>();
+  const double d_c = p.head<3>().dot(world_from_camera.translation()) + p[3];
+  const double sign = n_c.y() < 0.0 ? -1.0 : 1.0;  // normal towards -y (up)
+  PlaneError e;
+  e.height_m = std::abs(d_c) - sim::kCameraHeight;
+  e.pitch_deg = std::atan2(sign * n_c.z(), std::abs(n_c.y())) * 180.0 / M_PI;
+  return e;
+}
+
+TEST(ObjectStagePlane, MaskedPlaneStereoFitsTheLevelRoad) {
+  // A lead car 15 m ahead in the camera's lane, parked cars on both sides.
+  const int kFrames = 12;
+  absl::StatusOr<sim::Scenario> scenario = sim::MakeScenario("follow_braking", 2, kFrames);
+  ASSERT_TRUE(scenario.ok()) << scenario.status();
+  const geometry::StereoCamera& cam = scenario->camera;
+  sim::Renderer renderer(cam, sim::RenderOptions{});
+  SessionConfig config;
+  config.camera = cam;
+  features::OrbExtractor orb(OrbOptionsFrom(config.options));
+  ObjectStageOptions masked_options;
+  ObjectStageOptions matcher_options;
+  matcher_options.masked_plane_stereo = false;
+  ASSERT_TRUE(masked_options.masked_plane_stereo);  // the default
+  ObjectStage masked(config, masked_options);
+  ObjectStage matcher(config, matcher_options);
+  std::optional<Eigen::Vector4d> masked_plane, matcher_plane;
+
+  for (int i = 0; i < kFrames; ++i) {
+    const sim::StereoRender r = sim::RenderScenarioFrame(renderer, *scenario, i);
+    cv::Mat left = r.left, right = r.right;
+    if (left.channels() == 3) {
+      cv::cvtColor(r.left, left, cv::COLOR_BGR2GRAY);
+      cv::cvtColor(r.right, right, cv::COLOR_BGR2GRAY);
+    }
+    map::FrameFeatures f;
+    std::vector<cv::KeyPoint> right_kps;
+    cv::Mat right_desc;
+    std::vector<cv::Mat> left_levels, right_levels;
+    orb.Extract(right, cv::Mat(), &right_kps, &right_desc, &right_levels);
+    orb.Extract(left,
+                ObjectStage::FavourMask(r.panoptic, config.classes),
+                &f.keypoints,
+                &f.descriptors,
+                &left_levels);
+    features::StereoMatchResult st = features::MatchStereo(cam,
+                                                           orb.pyramid(),
+                                                           f.keypoints,
+                                                           f.descriptors,
+                                                           right_kps,
+                                                           right_desc,
+                                                           left_levels,
+                                                           right_levels);
+    f.u_right = std::move(st.u_right);
+    f.depth = std::move(st.depth);
+    for (const cv::KeyPoint& k : f.keypoints) {
+      const int64_t id = semantic::PanopticIdAt(r.panoptic, cvRound(k.pt.x), cvRound(k.pt.y));
+      f.labels.push_back(id);
+      f.is_static.push_back(config.classes.IsDynamic(semantic::ClassOf(id)) ? 0 : 1);
+    }
+    const std::shared_ptr<map::FrameFeatures> features =
+        map::FinalizeFeatures(std::move(f), cam.width, cam.height);
+    ObjectStageInput in;
+    in.frame_index = i;
+    in.timestamp_ns = static_cast<int64_t>(std::llround(scenario->TimeOf(i) * 1e9));
+    in.left = left;
+    in.right = right;
+    in.panoptic = r.panoptic;
+    in.features = features.get();
+    in.camera_from_world = scenario->WorldFromCamera(i).Inverse();
+    for (auto [stage, plane] : {std::pair{&masked, &masked_plane}, {&matcher, &matcher_plane}}) {
+      absl::StatusOr<ObjectStageOutput> out = stage->Process(in);
+      ASSERT_TRUE(out.ok()) << out.status();
+      for (const ClusterEvent& e : out->cluster_events) {
+        if (e.type == ClusterEventType::kPlaneUpdated && e.class_id == sim::kClassRoad)
+          *plane = e.plane;
+      }
+    }
+  }
+  const SE3d last = scenario->WorldFromCamera(kFrames - 1);
+  const std::optional<PlaneError> with_mask = RoadError(masked_plane, last);
+  const std::optional<PlaneError> with_matcher = RoadError(matcher_plane, last);
+  ASSERT_TRUE(with_mask && with_matcher);
+  std::printf(
+      "road plane after %d frames: height error %+.4f m, pitch %+.4f deg (masked); "
+      "%+.4f m, %+.4f deg (matcher)\n",
+      kFrames,
+      with_mask->height_m,
+      with_mask->pitch_deg,
+      with_matcher->height_m,
+      with_matcher->pitch_deg);
+  // With the true camera both planes are level to a few millimetres (the
+  // matcher's bias is largest in the blocks the cars straddle; in the runs
+  // the camera's own drift adds to it, docs/objects.md §37). Measured: height
+  // +0.7 mm, pitch +0.010° with the mask; -1.9 mm, +0.000° without.
+  EXPECT_LT(std::abs(with_mask->height_m), 0.002);
+  EXPECT_LT(std::abs(with_mask->pitch_deg), 0.02);
+  EXPECT_LT(std::abs(with_matcher->height_m), 0.004);
+  // The option is honoured: the two stages fitted different points.
+  EXPECT_GT(std::abs(with_mask->height_m - with_matcher->height_m), 1e-4);
+}
+
+}  // namespace
+}  // namespace twist
