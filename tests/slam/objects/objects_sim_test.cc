@@ -74,6 +74,10 @@ std::map<int, TrackStats> RunScenario(const std::string& name,
   std::vector<Eigen::Vector3d> road_points;
   ObjectTrackerOptions options;
   options.constrained = constrained && std::getenv("TWIST_SIM_FREE") == nullptr;
+  // The camera is the ground truth here: its height does not drift, so a car
+  // following the refitted road plane would only take the plane's refit
+  // noise (docs/objects.md §37); the cars keep the plane they were created on.
+  options.follow_parent_plane = false;
   if (const char* w = std::getenv("TWIST_SIM_WINDOW")) options.flow.window_size = std::atoi(w);
   if (std::getenv("TWIST_SIM_NOREFINE") != nullptr) options.refine_by_projection = false;
   if (const char* m = std::getenv("TWIST_SIM_MINSIGMA"))
