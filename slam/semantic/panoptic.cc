@@ -132,10 +132,10 @@ cv::Mat SegmentMask(const cv::Mat& mask, const PanopticLabel& label, const cv::R
 
 cv::Mat ClassMask(const cv::Mat& mask, int class_id) {
   CHECK(IsPanopticType(mask)) << "panoptic mask must be CV_16UC1 or CV_32SC1";
-  cv::Mat out(mask.size(), CV_8UC1, cv::Scalar(0));
-  ForEachPixel(mask, [&](int x, int y, int64_t id) {
-    if (ClassOf(id) == class_id) out.at<uint8_t>(y, x) = 255;
-  });
+  // The ids of a class are one range: [class · divisor, class · divisor + divisor − 1].
+  const double first = static_cast<double>(MakePanopticId(class_id, 0));
+  cv::Mat out;
+  cv::inRange(mask, cv::Scalar(first), cv::Scalar(first + kPanopticDivisor - 1), out);
   return out;
 }
 

@@ -64,11 +64,12 @@ struct ObjectStageOptions {
   // points are), around the engine matcher's value; a point whose masked
   // measurement fails is not used for the plane. Needs the right image
   // (ObjectStageInput::right); without it the matcher's disparity is used.
-  // The matcher's blocks on the road are biased by +0.03 px on level 0 to
-  // +0.6 px on level 6 (slanted ground, neighbours in the block); the road
-  // plane took that as a few millimetres of height and a pitch of ~0.03°,
-  // which a planar car's depth multiplies by its distance over its height
-  // below the camera (docs/objects.md §37).
+  // The matcher's disparities on the rendered road are too large by a
+  // median 0.09 px (most in the blocks that straddle a car), the masked ones
+  // by 0.003 px; with them the plane follows the camera's own height drift
+  // closely enough for the planar cars to follow their plane
+  // (ObjectTrackerOptions::follow_parent_plane; docs/objects.md §37). Costs
+  // ~5 ms per frame on the generated street scenes (objects_bench).
   bool masked_plane_stereo = true;
   double plane_stereo_half_px = 5.5;  // the masked block's half size (level-0 pixels)
   // Dynamic BA over the last frames (0: off). The window is also bounded by

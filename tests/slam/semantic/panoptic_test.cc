@@ -61,8 +61,9 @@ TEST(Panoptic, ExtractsSegmentsWithBoxes) {
 
 // Segments and their masks on a mask of blobs and scattered pixels (label
 // runs of every length), in both panoptic types: counts and tight boxes as
-// a per-pixel tally gives them, and each segment's mask, scanned in its box
-// only, is the whole-image mask of its label.
+// a per-pixel tally gives them, each segment's mask, scanned in its box
+// only, is the whole-image mask of its label, and each class's mask
+// (ClassMask) is the union of its segments' masks.
 TEST(Panoptic, SegmentsAndTheirMasksMatchAPerPixelTally) {
   std::mt19937_64 rng(3);
   std::uniform_int_distribution<int> pick(0, 5);
@@ -103,6 +104,18 @@ TEST(Panoptic, SegmentsAndTheirMasksMatchAPerPixelTally) {
       EXPECT_EQ(cv::countNonZero(whole), s.num_pixels) << id;
       EXPECT_EQ(cv::countNonZero(whole != boxed), 0) << id;
     }
+    // A class's mask is the union of its instances' masks; the unlabelled
+    // pixel (-1) belongs to no class.
+    for (int class_id : {0, 7, 11, 24, 26}) {
+      cv::Mat expected(mask.size(), CV_8UC1, cv::Scalar(0));
+      for (const Segment& s : segments) {
+        if (s.label.class_id == class_id) expected |= SegmentMask(mask, s.label);
+      }
+      const cv::Mat got = ClassMask(mask, class_id);
+      ASSERT_EQ(got.type(), CV_8UC1);
+      EXPECT_EQ(cv::countNonZero(got != expected), 0) << class_id;
+    }
+    EXPECT_EQ(cv::countNonZero(ClassMask(mask, 0)), 0);
   }
 }
 
