@@ -16,6 +16,15 @@ using geometry::Vector6d;
 
 namespace {
 
+// Frames in a row, up to the last one, in which the object coasted (a
+// refused step: no observation kept).
+int CoastedFrames(const TrackedObject& o) {
+  int coasted = 0;
+  for (auto it = o.history.rbegin(); it != o.history.rend() && it->observations.empty(); ++it)
+    ++coasted;
+  return coasted;
+}
+
 // Buckets keypoints on a coarse grid for radius look-ups.
 class KeypointGrid {
  public:
@@ -185,10 +194,12 @@ absl::Status ObjectTrackerOptions::Validate() const {
   }
   if (!(acceleration_sigma_mps2 >= 0.0) || !(angular_acceleration_sigma_radps2 > 0.0) ||
       !(max_step_sigma_px > 0.0) || !(filter_gate_confidence > 0.0) ||
-      !(filter_gate_confidence < 1.0) || max_coast_frames < 0) {
+      !(filter_gate_confidence < 1.0) || max_coast_frames < 0 ||
+      restart_filter_after_refusals < 0) {
     return absl::InvalidArgumentError(
         "object tracker needs acceleration_sigma_mps2 >= 0, angular_acceleration_sigma_radps2 > 0, "
-        "max_step_sigma_px > 0, 0 < filter_gate_confidence < 1 and max_coast_frames >= 0");
+        "max_step_sigma_px > 0, 0 < filter_gate_confidence < 1, max_coast_frames >= 0 and "
+        "restart_filter_after_refusals >= 0");
   }
   if (!(young_turn_rate_sigma_radps >= 0.0) || young_turn_prior_poses < 0) {
     return absl::InvalidArgumentError(
@@ -871,10 +882,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   // re-acquired later).
   auto coast = [&]() {
     ++stats_.rejected;
-    int coasted = 0;
-    for (auto it = o->history.rbegin(); it != o->history.rend() && it->observations.empty(); ++it)
-      ++coasted;
-    if (coasted >= options_.max_coast_frames) return false;
+    if (CoastedFrames(*o) >= options_.max_coast_frames) return false;
     o->world_from_object = predicted;
     o->twist_step = initial;
     o->step_seconds = ctx.dt;
@@ -892,10 +900,24 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       // that fails this gate too coasts with the wider covariance, so that
       // the next step is gated as a possible turn as well.
       const double manoeuvre = options_.manoeuvre_angular_acceleration_sigma_radps2;
-      if (!(manoeuvre > 0.0) || !o->twist_covariance_valid) return coast();
-      predicted_covariance += ProcessNoise(*o, ctx.dt, 0.0, manoeuvre);
-      if (!FilterStep(*o, initial, predicted_covariance, &*est)) return coast();
-      ++stats_.manoeuvres;
+      bool passed = false;
+      if (manoeuvre > 0.0 && o->twist_covariance_valid) {
+        predicted_covariance += ProcessNoise(*o, ctx.dt, 0.0, manoeuvre);
+        passed = FilterStep(*o, initial, predicted_covariance, &*est);
+        if (passed) ++stats_.manoeuvres;
+      }
+      if (!passed) {
+        if (options_.restart_filter_after_refusals <= 0 ||
+            est->sigma_px > options_.max_step_sigma_px ||
+            CoastedFrames(*o) < options_.restart_filter_after_refusals) {
+          return coast();
+        }
+        // The filter lags: the step stands as measured, and the filter
+        // starts again from it.
+        o->twist_covariance_valid = false;
+        est->covariance_valid = false;
+        ++stats_.filter_restarts;
+      }
     }
   }
 

@@ -661,6 +661,59 @@ TEST(ObjectTracker, AFailedMeasurementCoastsOnThePrediction) {
   }
 }
 
+// A car whose speed changes at once (from 8 to 12 m/s between two frames,
+// as the filter sees a car that accelerated while an overtaking car hid it):
+// every step measured after the change fails the constant-velocity filter's
+// gate. After restart_filter_after_refusals refused steps the next one is
+// taken as measured and the filter starts again from it; without that the
+// car coasts on its old speed until it is lost and then created again.
+TEST(ObjectTracker, AFilterLaggingAChangeOfSpeedStartsAgain) {
+  for (int restart : {2, 0}) {
+    CarSequence seq(0.3, 43);
+    ObjectTrackerOptions options;
+    options.restart_filter_after_refusals = restart;
+    ObjectTracker tracker(seq.camera(), options);
+    const Vector6d cruise = seq.step();
+    std::set<int64_t> ids;
+    int restarts = 0, rejected = 0, lost = 0;
+    double last_error = 0.0;
+    for (int i = 0; i < 24; ++i) {
+      if (i == 12) seq.set_step(1.5 * cruise);
+      const auto results = tracker.Process(seq.Next(6, true));
+      ASSERT_TRUE(results.ok()) << results.status();
+      restarts += tracker.last_stats().filter_restarts;
+      rejected += tracker.last_stats().rejected;
+      for (const ObjectResult& r : *results) {
+        if (r.state == ObjectState::kLost) {
+          ++lost;
+          continue;
+        }
+        ids.insert(r.id);
+        if (i == 23) last_error = SpeedError(seq, r);
+      }
+    }
+    std::printf(
+        "[speed change, restart after %d] %d rejected, %d restarts, %d lost, %zu ids, "
+        "last speed error %.2f m/s\n",
+        restart,
+        rejected,
+        restarts,
+        lost,
+        ids.size(),
+        last_error);
+    if (restart > 0) {
+      EXPECT_EQ(restarts, 1);
+      EXPECT_EQ(rejected, restart);
+      EXPECT_EQ(lost, 0);
+      EXPECT_EQ(ids.size(), 1u);
+      EXPECT_LT(last_error, 0.5);
+    } else {
+      EXPECT_EQ(restarts, 0);
+      EXPECT_GT(lost + static_cast<int>(ids.size()) - 1, 0);  // lost, or created again
+    }
+  }
+}
+
 // A car 20 m away under 0.7 px keypoint noise: the filter lowers the
 // frame-to-frame jitter of the speed, and still follows a car braking at
 // 4 m/s² (the error of the object's structure, which no filter removes, makes
@@ -1279,6 +1332,10 @@ TEST(ObjectTracker, RejectsMalformedInput) {
     EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
   }
   options.tracked_stereo_search_fraction = 0.0;  // masked_stereo_options.search_px only
+  EXPECT_TRUE(options.Validate().ok());
+  options.restart_filter_after_refusals = -1;
+  EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
+  options.restart_filter_after_refusals = 2;
   EXPECT_TRUE(options.Validate().ok());
 }
 
