@@ -33,6 +33,14 @@ double PointPlaneDistance(const Eigen::Vector4d& plane, const Eigen::Vector3d& p
 
 Eigen::Vector3d PlaneNormal(const Eigen::Vector4d& plane) { return plane.head<3>().normalized(); }
 
+Eigen::Vector4d TransformPlane(const Eigen::Matrix3d& b_from_a_rotation,
+                               const Eigen::Vector3d& b_from_a_translation,
+                               const Eigen::Vector4d& plane_in_a) {
+  const Eigen::Vector3d n = b_from_a_rotation * plane_in_a.head<3>();
+  return NormalizePlane(
+      Eigen::Vector4d(n.x(), n.y(), n.z(), plane_in_a.w() - n.dot(b_from_a_translation)));
+}
+
 absl::StatusOr<Eigen::Vector4d> FitPlaneLeastSquares(const std::vector<Eigen::Vector3d>& points) {
   if (points.size() < 3) {
     return absl::InvalidArgumentError("plane fit needs at least 3 points, got " +

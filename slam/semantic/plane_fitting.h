@@ -29,6 +29,13 @@ double PointPlaneDistance(const Eigen::Vector4d& plane, const Eigen::Vector3d& p
 // Unit normal (a, b, c)/|(a, b, c)|.
 Eigen::Vector3d PlaneNormal(const Eigen::Vector4d& plane);
 
+// The plane `plane_in_a` in frame b, where x_b = b_from_a_rotation x_a +
+// b_from_a_translation: n_b = R n_a, d_b = d_a − n_b·t, normalised (so its
+// sign follows NormalizePlane in frame b).
+Eigen::Vector4d TransformPlane(const Eigen::Matrix3d& b_from_a_rotation,
+                               const Eigen::Vector3d& b_from_a_translation,
+                               const Eigen::Vector4d& plane_in_a);
+
 // Least-squares plane through >= 3 non-collinear points (SVD of the centred
 // points; the normal is the singular vector of the smallest singular value).
 absl::StatusOr<Eigen::Vector4d> FitPlaneLeastSquares(const std::vector<Eigen::Vector3d>& points);

@@ -55,7 +55,9 @@ ObjectStage::ObjectStage(const SessionConfig& config, const ObjectStageOptions& 
   for (const joints::ClassInfo& c : config_.classes.classes()) {
     if (c.is_dynamic) dynamic.insert(c.id);
     if (!c.is_dynamic && c.fit_plane) {
-      planes_.emplace(c.id, PlaneState{semantic::ClusterPlane(PlaneOptionsFrom(options_)), {}, -1});
+      planes_.emplace(
+          c.id,
+          PlaneState{semantic::ClusterPlane(PlaneOptionsFrom(options_)), {}, -1, {}, std::nullopt});
     }
   }
   associator_.set_dynamic_classes(std::move(dynamic));
@@ -99,6 +101,11 @@ joints::Joint ObjectStage::JointFor(const objects::ObjectDetectionInput& det,
   const auto parent = planes_.find(info->parent_id);
   if (parent != planes_.end() && parent->second.plane.has_plane()) {
     spec.parent_plane = parent->second.plane.reported_plane();
+    if (!IsAxisJoint(spec.type) && parent->second.camera_plane) {
+      spec.parent_plane = semantic::TransformPlane(world_from_camera.rotation(),
+                                                   world_from_camera.translation(),
+                                                   *parent->second.camera_plane);
+    }
   }
   if (!IsAxisJoint(spec.type)) return objects::ResolveJointOrFree(spec);
 
@@ -145,6 +152,39 @@ joints::Joint ObjectStage::JointFor(const objects::ObjectDetectionInput& det,
   const joints::Joint joint = objects::ResolveJointOrFree(spec);
   axis_joints_.emplace(det.cluster_id, joint);
   return joint;
+}
+
+void ObjectStage::UpdateCameraPlane(int64_t frame_index,
+                                    const SE3d& world_from_camera,
+                                    PlaneState* ps) const {
+  if (options_.camera_plane_frames <= 0) return;
+  while (!ps->camera_points.empty() &&
+         ps->camera_points.front().first <= frame_index - options_.camera_plane_frames) {
+    ps->camera_points.pop_front();
+  }
+  if (!ps->plane.has_plane() ||
+      static_cast<int>(ps->camera_points.size()) < kMinCameraPlanePoints) {
+    ps->camera_plane.reset();
+    return;
+  }
+  std::vector<semantic::StereoPlanePoint> points;
+  points.reserve(ps->camera_points.size());
+  for (const auto& [frame, p] : ps->camera_points) points.push_back(p);
+  // The refinement is local (its Tukey weights keep the points near the
+  // initial plane): from the last camera plane, else from the world fit as
+  // this camera sees it.
+  Eigen::Vector4d initial;
+  if (ps->camera_plane) {
+    initial = *ps->camera_plane;
+  } else {
+    const SE3d camera_from_world = world_from_camera.Inverse();
+    initial = semantic::TransformPlane(
+        camera_from_world.rotation(), camera_from_world.translation(), ps->plane.plane());
+  }
+  absl::StatusOr<Eigen::Vector4d> refined =
+      semantic::RefinePlaneWeighted(points, initial, semantic::PlaneRefineOptions());
+  ps->camera_plane.reset();
+  if (refined.ok()) ps->camera_plane = *refined;
 }
 
 absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& in) {
@@ -201,6 +241,12 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
     if (static_cast<int>(it->second.points.size()) > options_.max_plane_points) {
       it->second.points.pop_front();
     }
+    if (options_.camera_plane_frames > 0) {
+      semantic::StereoPlanePoint in_camera = sp;
+      in_camera.point = *p;
+      in_camera.ray = p->normalized();
+      it->second.camera_points.emplace_back(in.frame_index, in_camera);
+    }
   }
 
   // Detections: dynamic instances (masks) and plane-class stuff (boxes).
@@ -246,6 +292,7 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
       e.plane = ps.plane.reported_plane();
       out.cluster_events.push_back(e);
     }
+    UpdateCameraPlane(in.frame_index, world_from_camera, &ps);
   }
 
   // Object tracking.
@@ -639,6 +686,15 @@ void ObjectStage::Write(BinaryWriter* w) const {
       w->Pod(p.sigma_along_m);
     }
     w->Pod(ps.cluster_id);
+    w->Pod<uint64_t>(ps.camera_points.size());  // format 12
+    for (const auto& [frame, p] : ps.camera_points) {
+      w->Pod(frame);
+      WriteVec(p.point, w);
+      WriteVec(p.ray, w);
+      w->Pod(p.sigma_along_m);
+    }
+    w->Pod<uint8_t>(ps.camera_plane.has_value());
+    WriteVec(ps.camera_plane.value_or(Eigen::Vector4d::Zero()), w);
   }
   // Tracked objects.
   const objects::ObjectTracker::State ts = tracker_.GetState();
@@ -732,6 +788,29 @@ absl::Status ObjectStage::Read(BinaryReader* r, uint32_t version) {
     it->second.cluster_id = r->Pod<int64_t>();
     if (!r->ok() || !plane.allFinite() || (has_plane && plane.head<3>().norm() < 1e-9)) {
       return corrupt("plane");
+    }
+    it->second.camera_points.clear();
+    it->second.camera_plane.reset();
+    if (version >= 12) {  // before: no camera points (the plane is refitted on new ones)
+      const uint64_t nc = r->Count(64);
+      for (uint64_t i = 0; i < nc && r->ok(); ++i) {
+        const int64_t frame = r->Pod<int64_t>();
+        semantic::StereoPlanePoint p;
+        p.point = ReadVec<Eigen::Vector3d>(r);
+        p.ray = ReadVec<Eigen::Vector3d>(r);
+        p.sigma_along_m = r->Pod<double>();
+        if (!p.point.allFinite() || !p.ray.allFinite() || !std::isfinite(p.sigma_along_m)) {
+          return corrupt("camera plane point");
+        }
+        it->second.camera_points.emplace_back(frame, p);
+      }
+      const bool has_camera_plane = r->Pod<uint8_t>() != 0;
+      const Eigen::Vector4d camera_plane = ReadVec<Eigen::Vector4d>(r);
+      if (!r->ok() || !camera_plane.allFinite() ||
+          (has_camera_plane && camera_plane.head<3>().norm() < 1e-9)) {
+        return corrupt("camera plane");
+      }
+      if (has_camera_plane) it->second.camera_plane = camera_plane;
     }
   }
 

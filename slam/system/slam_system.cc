@@ -55,7 +55,10 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // (ObjectPointObservation::disparity_noise_ratio, the dynamic BA's stereo
 // whitening). Older files load with 0: the BA window they bring weighs its
 // disparities as before, until the window has slid past them.
-constexpr uint32_t kFormatVersion = 11;
+// 12: + each plane class's camera-frame points and plane
+// (ObjectStageOptions::camera_plane_frames). Older files load with none: the
+// planar joints take the world fit until new frames bring enough points.
+constexpr uint32_t kFormatVersion = 12;
 // Covisible keyframes in the local BA with dense keyframes (SlamOptions).
 constexpr int kDenseLocalBaKeyFrames = 8;
 

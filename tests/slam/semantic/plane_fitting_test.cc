@@ -52,6 +52,33 @@ TEST(PlaneFitting, NormalisationAndDistance) {
   EXPECT_NEAR(PointPlaneDistance(p, Eigen::Vector3d(4, 0.5, 2)), 2.0, 1e-12);
 }
 
+TEST(PlaneFitting, TransformPlaneMovesWithItsPoints) {
+  // The road 1.65 m below a camera, carried into a world in which that
+  // camera is turned and displaced: the plane's points stay on it, and the
+  // sign follows NormalizePlane in the new frame.
+  std::mt19937_64 rng(3);
+  const Eigen::Vector3d n = Eigen::Vector3d(0.002, -1.0, 0.004).normalized();
+  const auto in_camera = MakePlanePoints(n, 1.65, 20, 0.0, 0.0, &rng);
+  const Eigen::Vector4d road = NormalizePlane(Eigen::Vector4d(n.x(), n.y(), n.z(), 1.65));
+  const Eigen::Matrix3d r =
+      Eigen::AngleAxisd(0.7, Eigen::Vector3d(0.1, 1.0, -0.2).normalized()).toRotationMatrix();
+  const Eigen::Vector3d t(12.0, -3.0, 40.0);
+  const Eigen::Vector4d in_world = TransformPlane(r, t, road);
+  EXPECT_NEAR(in_world.norm(), 1.0, 1e-12);
+  EXPECT_GE(in_world(3), 0.0);
+  for (const Eigen::Vector3d& p : in_camera) {
+    ASSERT_NEAR(PointPlaneDistance(road, p), 0.0, 1e-9);
+    EXPECT_NEAR(PointPlaneDistance(in_world, r * p + t), 0.0, 1e-9);
+  }
+  // Distances are kept: the camera's height above the road.
+  EXPECT_NEAR(std::abs(PointPlaneDistance(in_world, t)),
+              PointPlaneDistance(road, Eigen::Vector3d::Zero()),
+              1e-9);
+  // And back.
+  const Eigen::Vector4d back = TransformPlane(r.transpose(), -(r.transpose() * t), in_world);
+  EXPECT_LT((back - road).norm(), 1e-12);
+}
+
 TEST(PlaneFitting, LeastSquaresIsExactOnNoiseFreePoints) {
   std::mt19937_64 rng(1);
   const auto pts = MakePlanePoints({0.1, -1.0, 0.05}, 1.6, 50, 0.0, 0.0, &rng);
