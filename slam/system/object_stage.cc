@@ -281,17 +281,20 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
     }
   }
   for (auto& [cls, ps] : planes_) {
-    if (ps.cluster_id < 0) continue;
-    const std::vector<semantic::StereoPlanePoint> pts(ps.points.begin(), ps.points.end());
-    if (ps.plane.Update(pts, &rng_)) {
-      ClusterEvent e;
-      e.type = ClusterEventType::kPlaneUpdated;
-      e.cluster_id = ps.cluster_id;
-      e.class_id = cls;
-      e.is_dynamic = false;
-      e.plane = ps.plane.reported_plane();
-      out.cluster_events.push_back(e);
+    if (ps.cluster_id >= 0) {
+      const std::vector<semantic::StereoPlanePoint> pts(ps.points.begin(), ps.points.end());
+      if (ps.plane.Update(pts, &rng_)) {
+        ClusterEvent e;
+        e.type = ClusterEventType::kPlaneUpdated;
+        e.cluster_id = ps.cluster_id;
+        e.class_id = cls;
+        e.is_dynamic = false;
+        e.plane = ps.plane.reported_plane();
+        out.cluster_events.push_back(e);
+      }
     }
+    // Every class, so that the camera points of a class without a cluster
+    // (and so without a plane) are dropped too.
     UpdateCameraPlane(in.frame_index, world_from_camera, &ps);
   }
 

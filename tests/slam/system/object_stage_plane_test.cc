@@ -1,7 +1,9 @@
 // The road plane of the object stage (the parent of every planar car) on
-// rendered frames with the true camera: the plane points' disparities
+// rendered frames: with the true camera, the plane points' disparities
 // measured on the road's mask (ObjectStageOptions::masked_plane_stereo, the
-// default) against the engine matcher's own.
+// default) against the engine matcher's own; with a drifting camera
+// estimate, the plane the planar joints get (the road as the current camera
+// sees it, ObjectStageOptions::camera_plane_frames) against the world fit.
 #include <glog/logging.h>
 #include <gtest/gtest.h>
 
