@@ -2,6 +2,7 @@
 
 #include <glog/logging.h>
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <string>
@@ -285,7 +286,21 @@ joints::Joint ObjectTracker::EffectiveJoint(const joints::Joint& joint) const {
 }
 
 void ObjectTracker::UpdateJoint(const joints::Joint& joint, TrackedObject* o) const {
-  const joints::Joint next = EffectiveJoint(joint);
+  joints::Joint next = EffectiveJoint(joint);
+  if (next.type() == o->joint.type() &&
+      (next.type() == joints::JointType::kPlanar || next.type() == joints::JointType::kFree)) {
+    // A joint frame built from a plane has arbitrary in-plane axes (picked
+    // from the normal alone: they swap when the normal's smallest component
+    // changes from x to z). Keep the object's: its last frame turned by the
+    // smallest rotation onto the new normal, at the new origin. The joint's
+    // constraint is the same; the twist reported in the joint frame keeps its
+    // axes from frame to frame.
+    const Eigen::Matrix3d last = o->joint.world_from_joint().rotation();
+    const Eigen::Matrix3d turn =
+        Eigen::Quaterniond::FromTwoVectors(last.col(2), next.world_from_joint().rotation().col(2))
+            .toRotationMatrix();
+    next = joints::Joint(next.type(), SE3d(turn * last, next.world_from_joint().translation()));
+  }
   if (options_.follow_parent_plane && !o->stationary && next.type() == joints::JointType::kPlanar &&
       o->joint.type() == joints::JointType::kPlanar) {
     const Eigen::Vector3d n = next.world_from_joint().rotation().col(2);

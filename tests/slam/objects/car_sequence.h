@@ -85,6 +85,10 @@ class CarSequence {
   // sees it (shifted with it), as a SLAM camera's road plane fitted on its
   // own recent points is. The images are the true ones.
   void set_camera_height_drift(double m_per_frame) { height_drift_ = m_per_frame; }
+  // The road plane handed with each detection is tilted by this angle,
+  // about the world x axis on even frames and about z on odd ones, as a
+  // refitted plane's normal jitters (the car still drives on the true road).
+  void set_road_normal_jitter(double rad) { normal_jitter_ = rad; }
   // Camera pose the tracker was given for the last frame (see above).
   const SE3d& camera_from_world_given() const { return camera_from_world_given_; }
   // True camera pose of the last frame.
@@ -171,8 +175,14 @@ class CarSequence {
       JointSpec spec;
       spec.type = joints::JointType::kPlanar;
       // The road in the drifting camera's world: π(X − δ).
-      spec.parent_plane = semantic::NormalizePlane(Eigen::Vector4d(
-          road_.x(), road_.y(), road_.z(), road_.w() - road_.head<3>().dot(Drift())));
+      Eigen::Vector3d n = road_.head<3>();
+      if (normal_jitter_ != 0.0) {
+        const Eigen::Vector3d axis =
+            index_ % 2 == 0 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitZ();
+        n = Eigen::AngleAxisd(normal_jitter_, axis) * n;
+      }
+      spec.parent_plane = semantic::NormalizePlane(
+          Eigen::Vector4d(n.x(), n.y(), n.z(), road_.w() - road_.head<3>().dot(Drift())));
       spec.anchor = world_from_object_.translation();
       det.joint = ResolveJointOrFree(spec);
       f.detections.push_back(det);
@@ -192,6 +202,7 @@ class CarSequence {
   double extra_noise_ = 0.0;
   bool independent_right_noise_ = false;
   double height_drift_ = 0.0;
+  double normal_jitter_ = 0.0;
   SE3d camera_from_world_given_, camera_from_world_true_;
   std::mt19937_64 rng_;
   geometry::StereoCamera cam_;
