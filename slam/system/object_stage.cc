@@ -409,6 +409,23 @@ Vec ReadVec(BinaryReader* r) {
   return v;
 }
 
+// A plane point: position, viewing ray and noise along it (56 bytes).
+void WritePlanePoint(const semantic::StereoPlanePoint& p, BinaryWriter* w) {
+  WriteVec(p.point, w);
+  WriteVec(p.ray, w);
+  w->Pod(p.sigma_along_m);
+}
+// `with_noise` false: the position alone (formats before 7; noise unknown).
+// False on non-finite values.
+bool ReadPlanePoint(BinaryReader* r, bool with_noise, semantic::StereoPlanePoint* p) {
+  p->point = ReadVec<Eigen::Vector3d>(r);
+  if (with_noise) {
+    p->ray = ReadVec<Eigen::Vector3d>(r);
+    p->sigma_along_m = r->Pod<double>();
+  }
+  return p->point.allFinite() && p->ray.allFinite() && std::isfinite(p->sigma_along_m);
+}
+
 void WriteRect(const cv::Rect2d& b, BinaryWriter* w) {
   w->Pod(b.x);
   w->Pod(b.y);
@@ -683,18 +700,12 @@ void ObjectStage::Write(BinaryWriter* w) const {
     w->Pod<int32_t>(ps.plane.num_points_at_fit());
     w->Pod<int32_t>(ps.plane.num_inliers());
     w->Pod<uint64_t>(ps.points.size());
-    for (const semantic::StereoPlanePoint& p : ps.points) {
-      WriteVec(p.point, w);
-      WriteVec(p.ray, w);  // format 7
-      w->Pod(p.sigma_along_m);
-    }
+    for (const semantic::StereoPlanePoint& p : ps.points) WritePlanePoint(p, w);  // ray: format 7
     w->Pod(ps.cluster_id);
     w->Pod<uint64_t>(ps.camera_points.size());  // format 12
     for (const auto& [frame, p] : ps.camera_points) {
       w->Pod(frame);
-      WriteVec(p.point, w);
-      WriteVec(p.ray, w);
-      w->Pod(p.sigma_along_m);
+      WritePlanePoint(p, w);
     }
     w->Pod<uint8_t>(ps.camera_plane.has_value());
     WriteVec(ps.camera_plane.value_or(Eigen::Vector4d::Zero()), w);
@@ -778,14 +789,7 @@ absl::Status ObjectStage::Read(BinaryReader* r, uint32_t version) {
     it->second.points.clear();
     for (uint64_t i = 0; i < np && r->ok(); ++i) {
       semantic::StereoPlanePoint p;
-      p.point = ReadVec<Eigen::Vector3d>(r);
-      if (version >= 7) {  // before: noise not known
-        p.ray = ReadVec<Eigen::Vector3d>(r);
-        p.sigma_along_m = r->Pod<double>();
-      }
-      if (!p.point.allFinite() || !p.ray.allFinite() || !std::isfinite(p.sigma_along_m)) {
-        return corrupt("plane point");
-      }
+      if (!ReadPlanePoint(r, version >= 7, &p)) return corrupt("plane point");
       it->second.points.push_back(p);
     }
     it->second.cluster_id = r->Pod<int64_t>();
@@ -799,12 +803,7 @@ absl::Status ObjectStage::Read(BinaryReader* r, uint32_t version) {
       for (uint64_t i = 0; i < nc && r->ok(); ++i) {
         const int64_t frame = r->Pod<int64_t>();
         semantic::StereoPlanePoint p;
-        p.point = ReadVec<Eigen::Vector3d>(r);
-        p.ray = ReadVec<Eigen::Vector3d>(r);
-        p.sigma_along_m = r->Pod<double>();
-        if (!p.point.allFinite() || !p.ray.allFinite() || !std::isfinite(p.sigma_along_m)) {
-          return corrupt("camera plane point");
-        }
+        if (!ReadPlanePoint(r, true, &p)) return corrupt("camera plane point");
         it->second.camera_points.emplace_back(frame, p);
       }
       const bool has_camera_plane = r->Pod<uint8_t>() != 0;
