@@ -26,6 +26,16 @@ int CoastedFrames(const TrackedObject& o) {
   return coasted;
 }
 
+// Poses since the object was last held stationary (the history's samples
+// after its last held one); -1 when the history holds no held sample.
+int PosesSinceHold(const TrackedObject& o) {
+  int moving = 0;
+  for (auto it = o.history.rbegin(); it != o.history.rend(); ++it, ++moving) {
+    if (it->held) return moving;
+  }
+  return -1;
+}
+
 // Buckets keypoints on a coarse grid for radius look-ups.
 class KeypointGrid {
  public:
@@ -202,9 +212,11 @@ absl::Status ObjectTrackerOptions::Validate() const {
         "max_step_sigma_px > 0, 0 < filter_gate_confidence < 1, max_coast_frames >= 0 and "
         "restart_filter_after_refusals >= 0");
   }
-  if (!(young_turn_rate_sigma_radps >= 0.0) || young_turn_prior_poses < 0) {
+  if (!(young_turn_rate_sigma_radps >= 0.0) || young_turn_prior_poses < 0 ||
+      starting_turn_prior_poses < 0) {
     return absl::InvalidArgumentError(
-        "object tracker needs young_turn_rate_sigma_radps >= 0 and young_turn_prior_poses >= 0");
+        "object tracker needs young_turn_rate_sigma_radps >= 0, young_turn_prior_poses >= 0 and "
+        "starting_turn_prior_poses >= 0");
   }
   if (!(tracked_stereo_search_fraction >= 0.0 && tracked_stereo_search_fraction <= 1.0)) {
     return absl::InvalidArgumentError(
@@ -775,7 +787,10 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   const Matrix6d projector = o->joint.WorldProjector();
   // The constrained twist from the current observations, when there are
   // enough of them and the solver converged.
-  const bool young = static_cast<int>(o->history.size()) < options_.young_turn_prior_poses;
+  // A car pulling away from a stop is seen as poorly as a new one.
+  const int since_hold = o->stationary ? -1 : PosesSinceHold(*o);
+  const bool young = static_cast<int>(o->history.size()) < options_.young_turn_prior_poses ||
+                     (since_hold >= 0 && since_hold < options_.starting_turn_prior_poses);
   const TwistPrior turn_prior =
       young ? TurnPrior(o->joint, ctx.dt, options_.young_turn_rate_sigma_radps)
             : TurnPrior(o->joint, ctx.dt);

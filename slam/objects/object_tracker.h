@@ -421,6 +421,14 @@ struct ObjectTrackerOptions {
   // ~30 deg; the constant-velocity filter then predicted the spin. 0: off.
   double young_turn_rate_sigma_radps = 0.1;
   int young_turn_prior_poses = 3;
+  // The young prior also holds for the first starting_turn_prior_poses
+  // poses of an object that moves again after the tracker held it
+  // stationary: a car pulling away from a stop, seen from behind, barely
+  // shows its yaw either, and its steps start from rest. The lead car of
+  // `stationary_then_accelerating` seed 5 turned by 7-9° per frame four
+  // frames after it started and was lost 10 frames later (docs/objects.md
+  // section 40). 0: off.
+  int starting_turn_prior_poses = 15;
   double filter_gate_confidence = 0.999;
   double max_step_sigma_px = 4.0;
   int max_coast_frames = 3;

@@ -894,6 +894,53 @@ TEST(ObjectTracker, AYoungCarSeenFromBehindDoesNotSpin) {
   EXPECT_LT(worst[1], 0.5 * worst[0]);
 }
 
+// The same for a car seen from behind that pulls away after the tracker held
+// it stationary (ObjectTrackerOptions::starting_turn_prior_poses): its first
+// steps from rest show its yaw as poorly as a new car's.
+TEST(ObjectTracker, ACarPullingAwayFromAStopDoesNotSpin) {
+  double worst[2] = {0.0, 0.0};
+  int held_runs = 0;
+  for (int prior : {1, 0}) {
+    for (uint64_t seed = 61; seed < 68; ++seed) {
+      CarSequence seq(1.2, seed, 0.0, 15, 15.0);
+      ObjectTrackerOptions options;
+      if (!prior) options.starting_turn_prior_poses = 0;
+      ObjectTracker tracker(seq.camera(), options);
+      Vector6d straight;  // per frame, in the car's frame (joint axes)
+      straight << 0.0, 0.7, 0.0, 0.0, 0.0, 0.0;
+      const Vector6d cruise = seq.world_from_object().Adjoint() * straight;
+      seq.set_step(Vector6d::Zero());
+      bool held = false;
+      SE3d est_start, gt_start;
+      int moving = -1;
+      for (int i = 0; i < 20; ++i) {
+        // From frame 8 on: 2 m/s² along the car's length, up to 7 m/s.
+        if (i >= 8) seq.set_step(cruise * std::min(1.0, 0.2 / 7.0 * (i - 7)));
+        const auto results = tracker.Process(seq.Next(11, true));
+        ASSERT_TRUE(results.ok());
+        ASSERT_GE(results->size(), 1u);
+        const ObjectResult& r = (*results)[0];
+        if (i == 7) {
+          held = r.stationary;
+          est_start = r.world_from_object;
+          gt_start = seq.world_from_object();
+        }
+        if (i < 8 || r.state != ObjectState::kTracked) continue;
+        if (!r.stationary && moving < 0) moving = i;
+        worst[prior] = std::max(worst[prior],
+                                RotationErrorDeg(r.world_from_object * est_start.Inverse(),
+                                                 seq.world_from_object() * gt_start.Inverse()));
+      }
+      held_runs += held && moving > 0 ? 1 : 0;
+    }
+    std::printf("[starting turn prior %s] worst heading error over 12 steps, 7 seeds: %.2f deg\n",
+                prior ? "on" : "off",
+                worst[prior]);
+  }
+  EXPECT_EQ(held_runs, 14);  // every car was held, then started
+  EXPECT_LT(worst[1], 0.5 * worst[0]);
+}
+
 TEST(ObjectTracker, FarObjectIsCreatedOnlyOnceItsStereoDepthIsUsable) {
   // 50 m ahead: depth noise 50² · 0.3 / bf ≈ 1.9 m > 0.8 m.
   CarSequence far(0.0, 23, 3.0, 60, 50.0);
