@@ -107,6 +107,10 @@ absl::Status DynamicBaProblem::Validate() const {
       }
       has_frame[static_cast<size_t>(f.keyframe)] = true;
     }
+    if (!obj.fixed_points.empty() && obj.fixed_points.size() != obj.points_in_object.size()) {
+      return absl::InvalidArgumentError(Where("object", k) +
+                                        ": fixed_points needs one flag per point or none");
+    }
     if (obj.soft_normal_step_sigma_m < 0.0 ||
         (obj.soft_normal_step_sigma_m > 0.0 && std::abs(obj.soft_normal.norm() - 1.0) > 1e-6)) {
       return absl::InvalidArgumentError(Where("object", k) +
@@ -321,7 +325,9 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
       ceres_problem.SetManifold(pose, &se3_manifold);
       ceres_problem.SetParameterBlockConstant(pose);  // optimised through ξ̃ only
       if (obj.frames[static_cast<size_t>(f)].fixed) ceres_problem.SetParameterBlockConstant(xi);
-      if (obj.fixed_points) ceres_problem.SetParameterBlockConstant(p);
+      if (!obj.fixed_points.empty() && obj.fixed_points[static_cast<size_t>(o.point)]) {
+        ceres_problem.SetParameterBlockConstant(p);
+      }
       ++summary.num_dynamic_terms;
     }
     // Priors over runs of consecutive frames: constant velocity over

@@ -83,7 +83,10 @@ struct BaObject {
   std::vector<BaObjectFrame> frames;  // in time order; consecutive frames get e_const
   std::vector<Eigen::Vector3d> points_in_object;
   std::vector<BaObservation> observations;
-  bool fixed_points = false;
+  // Per point of points_in_object, held where it is (empty: every point is
+  // free). A sliding window holds the points it inherits from earlier
+  // windows (ObjectBaOptions::hold_points_seen_before_window).
+  std::vector<bool> fixed_points;
   // A soft freedom along a unit world direction (the normal of a planar
   // joint's plane): world_projector then includes translation along it, and
   // each step between consecutive frames gets the Gaussian prior

@@ -61,6 +61,9 @@ std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
       if (it == count.end() || it->second < options.min_observations_per_point) continue;
       index_of_point[p.id] = static_cast<int>(ba.points_in_object.size());
       ba.points_in_object.push_back(p.point_in_object);
+      ba.fixed_points.push_back(options.hold_points_seen_before_window > 0 &&
+                                p.num_observations - it->second >=
+                                    options.hold_points_seen_before_window);
       link.point_ids.push_back(p.id);
     }
     if (ba.points_in_object.empty()) continue;

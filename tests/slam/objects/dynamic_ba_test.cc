@@ -190,6 +190,11 @@ TEST(DynamicBa, ValidatesTheProblem) {
   EXPECT_TRUE(bad.Validate().ok());
   bad.objects[0].soft_normal_step_sigma_m = -0.01;
   EXPECT_EQ(bad.Validate().code(), absl::StatusCode::kInvalidArgument);
+  bad = w.problem;
+  bad.objects[0].fixed_points.assign(bad.objects[0].points_in_object.size() - 1, true);
+  EXPECT_EQ(bad.Validate().code(), absl::StatusCode::kInvalidArgument);
+  bad.objects[0].fixed_points.push_back(false);
+  EXPECT_TRUE(bad.Validate().ok());
   EXPECT_TRUE(InTemporalWindow(6'000'000'000, 10'000'000'000, 5.0));
   EXPECT_FALSE(InTemporalWindow(4'000'000'000, 10'000'000'000, 5.0));
 }
@@ -241,6 +246,28 @@ TEST(DynamicBa, LowersErrorOnAPerturbedWindow) {
                                w_autodiff.problem.objects[0].frames[f].world_from_object),
               1e-4);
   }
+}
+
+// Points flagged fixed (a sliding window's inherited points) keep their
+// values to the bit; the others are refined.
+TEST(DynamicBa, FixedPointsStayWhereTheyAre) {
+  Window w = MakeWindow(0.3, 2);
+  Perturb(&w, 3);
+  BaObject& car = w.problem.objects[0];
+  const std::vector<Eigen::Vector3d> before = car.points_in_object;
+  car.fixed_points.resize(before.size());
+  for (size_t k = 0; k < before.size(); ++k) car.fixed_points[k] = k % 2 == 0;
+  const auto summary = SolveDynamicBa(&w.problem, DynamicBaOptions{});
+  ASSERT_TRUE(summary.ok() && summary->usable);
+  int moved = 0;
+  for (size_t k = 0; k < before.size(); ++k) {
+    if (car.fixed_points[k]) {
+      EXPECT_EQ(car.points_in_object[k], before[k]) << "point " << k;
+    } else {
+      moved += car.points_in_object[k] != before[k] ? 1 : 0;
+    }
+  }
+  EXPECT_EQ(moved, static_cast<int>(before.size() / 2));
 }
 
 // A disparity measured with its own, smaller noise (0.1 px against 1 px of
