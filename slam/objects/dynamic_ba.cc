@@ -1,6 +1,7 @@
 #include "slam/objects/dynamic_ba.h"
 
 #include <ceres/ceres.h>
+#include <ceres/normal_prior.h>
 #include <glog/logging.h>
 
 #include <algorithm>
@@ -106,6 +107,14 @@ absl::Status DynamicBaProblem::Validate() const {
         return absl::InvalidArgumentError(Where("object", k) + ": two poses in one keyframe");
       }
       has_frame[static_cast<size_t>(f.keyframe)] = true;
+    }
+    if (!obj.point_prior_sqrt_information.empty() &&
+        (obj.point_prior_sqrt_information.size() != obj.points_in_object.size() ||
+         std::any_of(obj.point_prior_sqrt_information.begin(),
+                     obj.point_prior_sqrt_information.end(),
+                     [](const Eigen::Matrix3d& a) { return !a.allFinite(); }))) {
+      return absl::InvalidArgumentError(Where("object", k) +
+                                        ": point priors need one finite matrix per point or none");
     }
     if (!obj.fixed_points.empty() && obj.fixed_points.size() != obj.points_in_object.size()) {
       return absl::InvalidArgumentError(Where("object", k) +
@@ -329,6 +338,14 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
         ceres_problem.SetParameterBlockConstant(p);
       }
       ++summary.num_dynamic_terms;
+    }
+    for (size_t j = 0; j < obj.point_prior_sqrt_information.size(); ++j) {
+      const Eigen::Matrix3d& a = obj.point_prior_sqrt_information[j];
+      if (a.isZero() || !ceres_problem.HasParameterBlock(op.points[j])) continue;
+      ceres_problem.AddResidualBlock(
+          new ceres::NormalPrior(ceres::Matrix(a), ceres::Vector(obj.points_in_object[j])),
+          nullptr,
+          op.points[j]);
     }
     // Priors over runs of consecutive frames: constant velocity over
     // triplets, constant acceleration over quadruplets (Huber), the step

@@ -87,6 +87,10 @@ struct BaObject {
   // free). A sliding window holds the points it inherits from earlier
   // windows (ObjectBaOptions::hold_points_seen_before_window).
   std::vector<bool> fixed_points;
+  // Per point (empty: none), the square root A of the information of a
+  // Gaussian prior on the point at its value in points_in_object: the
+  // residual A (x − x₀) (a zero matrix: no prior for that point).
+  std::vector<Eigen::Matrix3d> point_prior_sqrt_information;
   // A soft freedom along a unit world direction (the normal of a planar
   // joint's plane): world_projector then includes translation along it, and
   // each step between consecutive frames gets the Gaussian prior

@@ -2,6 +2,8 @@
 
 #include <glog/logging.h>
 
+#include <algorithm>
+#include <cmath>
 #include <unordered_map>
 
 #include "slam/joints/joint.h"
@@ -9,6 +11,29 @@
 namespace twist::objects {
 
 using geometry::SE3d;
+
+namespace {
+
+// Square root of the information that `observations` stereo observations
+// from `object_from_camera`'s view give a point: across the ray the position
+// noise (z σ / f), along it the disparity's (z² σ_d / (f b)); symmetric, in
+// the object frame.
+Eigen::Matrix3d InheritedPointSqrtInformation(const geometry::StereoCamera& camera,
+                                              const SE3d& object_from_camera,
+                                              const Eigen::Vector3d& point_in_object,
+                                              int observations,
+                                              const ObjectBaOptions& options) {
+  const Eigen::Vector3d p_cam = object_from_camera.Inverse() * point_in_object;
+  const double z = std::max(p_cam.z(), 0.5);
+  const double across = z * options.inherited_point_sigma_px / camera.fx;
+  const double along = z * z * options.inherited_point_disparity_sigma_px / camera.bf();
+  const Eigen::Vector3d ray = object_from_camera.rotation() * p_cam.normalized();
+  const Eigen::Matrix3d along_ray = ray * ray.transpose();
+  return std::sqrt(static_cast<double>(observations)) *
+         ((Eigen::Matrix3d::Identity() - along_ray) / across + along_ray / along);
+}
+
+}  // namespace
 
 std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
                                                 const std::map<int64_t, int>& keyframe_of_frame,
@@ -56,14 +81,26 @@ std::vector<ObjectBaLink> AddTrackedObjectsToBa(const ObjectTracker& tracker,
     }
     ObjectBaLink link;
     link.object_id = id;
+    // The window's oldest frame: the view the inherited points' priors take
+    // their shape from.
+    const SE3d gauge_object_from_camera =
+        (problem->keyframes[static_cast<size_t>(keyframe_of_frame.at(samples[0]->frame_index))]
+             .camera_from_world *
+         samples[0]->world_from_object)
+            .Inverse();
     for (const ObjectPoint& p : object.points) {
       auto it = count.find(p.id);
       if (it == count.end() || it->second < options.min_observations_per_point) continue;
       index_of_point[p.id] = static_cast<int>(ba.points_in_object.size());
       ba.points_in_object.push_back(p.point_in_object);
+      const int before = p.num_observations - it->second;  // observations before the window
       ba.fixed_points.push_back(options.hold_points_seen_before_window > 0 &&
-                                p.num_observations - it->second >=
-                                    options.hold_points_seen_before_window);
+                                before >= options.hold_points_seen_before_window);
+      ba.point_prior_sqrt_information.push_back(
+          options.inherited_point_prior && before > 0
+              ? InheritedPointSqrtInformation(
+                    problem->camera, gauge_object_from_camera, p.point_in_object, before, options)
+              : Eigen::Matrix3d::Zero());
       link.point_ids.push_back(p.id);
     }
     if (ba.points_in_object.empty()) continue;

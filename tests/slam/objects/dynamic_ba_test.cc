@@ -195,6 +195,14 @@ TEST(DynamicBa, ValidatesTheProblem) {
   EXPECT_EQ(bad.Validate().code(), absl::StatusCode::kInvalidArgument);
   bad.objects[0].fixed_points.push_back(false);
   EXPECT_TRUE(bad.Validate().ok());
+  bad = w.problem;
+  bad.objects[0].point_prior_sqrt_information.assign(bad.objects[0].points_in_object.size() + 1,
+                                                     Eigen::Matrix3d::Identity());
+  EXPECT_EQ(bad.Validate().code(), absl::StatusCode::kInvalidArgument);
+  bad.objects[0].point_prior_sqrt_information.pop_back();
+  EXPECT_TRUE(bad.Validate().ok());
+  bad.objects[0].point_prior_sqrt_information[0](1, 1) = std::nan("");
+  EXPECT_EQ(bad.Validate().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_TRUE(InTemporalWindow(6'000'000'000, 10'000'000'000, 5.0));
   EXPECT_FALSE(InTemporalWindow(4'000'000'000, 10'000'000'000, 5.0));
 }
@@ -268,6 +276,36 @@ TEST(DynamicBa, FixedPointsStayWhereTheyAre) {
     }
   }
   EXPECT_EQ(moved, static_cast<int>(before.size() / 2));
+}
+
+// A point prior A (x − x₀) pulls its point towards x₀ by its weight: a
+// stiff one keeps it there, a zero matrix is no prior at all.
+TEST(DynamicBa, PointPriorsPullPointsToTheirValues) {
+  Window w = MakeWindow(0.3, 2);
+  Perturb(&w, 3);
+  Window none = w, zero = w;
+  BaObject& car = w.problem.objects[0];
+  const std::vector<Eigen::Vector3d> before = car.points_in_object;
+  car.point_prior_sqrt_information.assign(before.size(), Eigen::Matrix3d::Zero());
+  for (size_t k = 0; k < before.size(); k += 2) {
+    car.point_prior_sqrt_information[k] = 1e6 * Eigen::Matrix3d::Identity();
+  }
+  zero.problem.objects[0].point_prior_sqrt_information.assign(before.size(),
+                                                              Eigen::Matrix3d::Zero());
+  for (Window* x : {&w, &none, &zero}) {
+    const auto summary = SolveDynamicBa(&x->problem, DynamicBaOptions{});
+    ASSERT_TRUE(summary.ok() && summary->usable);
+  }
+  for (size_t k = 0; k < before.size(); ++k) {
+    if (k % 2 == 0) {
+      EXPECT_LT((car.points_in_object[k] - before[k]).norm(), 1e-5) << "point " << k;
+      EXPECT_GT((none.problem.objects[0].points_in_object[k] - before[k]).norm(), 1e-3)
+          << "point " << k;
+    }
+    EXPECT_EQ(zero.problem.objects[0].points_in_object[k],
+              none.problem.objects[0].points_in_object[k])
+        << "point " << k;
+  }
 }
 
 // A disparity measured with its own, smaller noise (0.1 px against 1 px of

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/Eigenvalues>
 #include <cstdio>
 #include <map>
 
@@ -443,9 +444,9 @@ TEST(ObjectBa, ASlidingWindowKeepsTheVelocityAtItsGauge) {
       ObjectTracker tracker(seq.camera(), ObjectTrackerOptions{});
       ObjectBaOptions options;
       options.keep_velocity_at_gauge = keep;
-      // Points free: held inherited points keep the velocity too (with
-      // them: one fixed frame 0.126 -> 0.029 m, two 0.019 -> 0.025 m).
-      options.hold_points_seen_before_window = 0;
+      // Points free (no prior): inherited points held keep the velocity
+      // too (one fixed frame 0.126 -> 0.029 m, two 0.019 -> 0.025 m).
+      options.inherited_point_prior = false;
       std::map<int64_t, SE3d> gt;
       SeenFrames seen;
       for (int i = 0; i < kFrames; ++i) {
@@ -485,14 +486,16 @@ TEST(ObjectBa, ASlidingWindowKeepsTheVelocityAtItsGauge) {
 // A car whose points turn over (one new point seen and one lost per frame,
 // as when the camera comes to see other corners of it), refined by the BA
 // after every frame on the last 10 frames. Points the window inherits from
-// earlier windows are held (ObjectBaOptions::hold_points_seen_before_window)
-// exactly when they have that many observations before it; solved again
-// from the window alone they follow its sliding gauge, and the car's motion
-// drifts further from the truth.
-TEST(ObjectBa, ASlidingWindowHoldsThePointsItInherits) {
+// earlier windows (observations before it) get a prior there
+// (ObjectBaOptions::inherited_point_prior), or are held with
+// hold_points_seen_before_window; solved again from the window alone they
+// follow its sliding gauge, and the car's motion drifts further from the
+// truth.
+TEST(ObjectBa, ASlidingWindowKeepsWhatItsInheritedPointsWereSeenAs) {
   const int kFrames = 30, kWindow = 10, kShown = 30;
-  std::map<int, double> error_of;
-  for (int hold : {0, 4}) {
+  enum Variant { kFree, kPrior, kHeld };
+  std::map<Variant, double> error_of;
+  for (Variant variant : {kFree, kPrior, kHeld}) {
     double sum_error = 0.0;
     const int kSeeds = 12;
     for (int seed = 0; seed < kSeeds; ++seed) {
@@ -500,7 +503,8 @@ TEST(ObjectBa, ASlidingWindowHoldsThePointsItInherits) {
       seq.set_step(0.4 * seq.step());  // 3.2 m/s
       ObjectTracker tracker(seq.camera(), ObjectTrackerOptions{});
       ObjectBaOptions options;
-      options.hold_points_seen_before_window = hold;
+      options.inherited_point_prior = variant == kPrior;
+      options.hold_points_seen_before_window = variant == kHeld ? 4 : 0;
       std::map<int64_t, SE3d> gt;
       SeenFrames seen;
       for (int i = 0; i < kFrames; ++i) {
@@ -514,25 +518,34 @@ TEST(ObjectBa, ASlidingWindowHoldsThePointsItInherits) {
         DynamicBaProblem problem = seen.Window(seq.camera(), kWindow, &keyframe_of_frame);
         const auto links = AddTrackedObjectsToBa(tracker, keyframe_of_frame, options, &problem);
         if (links.empty()) continue;
-        // The flags: observations before the window = all of the point's
-        // inlier observations less those in the window's frames.
+        // Observations before the window = all of the point's inlier
+        // observations less those in the window's frames.
         const TrackedObject& o = tracker.objects().begin()->second;
         const BaObject& ba = problem.objects[0];
         ASSERT_EQ(ba.fixed_points.size(), ba.points_in_object.size());
+        ASSERT_EQ(ba.point_prior_sqrt_information.size(), ba.points_in_object.size());
         std::map<int64_t, int> in_window;
         for (const BaObservation& obs : ba.observations) ++in_window[links[0].point_ids[obs.point]];
-        int held = 0;
+        int inherited = 0;
         for (size_t k = 0; k < ba.points_in_object.size(); ++k) {
           const int64_t id = links[0].point_ids[k];
           int before = 0;
           for (const ObjectPoint& p : o.points) {
             if (p.id == id) before = p.num_observations - in_window[id];
           }
-          EXPECT_EQ(ba.fixed_points[k], hold > 0 && before >= hold) << "frame " << i;
-          held += ba.fixed_points[k] ? 1 : 0;
+          inherited += before > 0 ? 1 : 0;
+          EXPECT_EQ(ba.fixed_points[k], variant == kHeld && before >= 4) << "frame " << i;
+          const Eigen::Matrix3d& a = ba.point_prior_sqrt_information[k];
+          EXPECT_EQ(a.isZero(), variant != kPrior || before == 0) << "frame " << i;
+          if (!a.isZero()) {
+            // Symmetric, positive definite, and growing with the number of
+            // observations: sqrt(before) times one observation's.
+            EXPECT_LT((a - a.transpose()).norm(), 1e-9 * a.norm());
+            EXPECT_GT(a.selfadjointView<Eigen::Lower>().eigenvalues().minCoeff(), 0.0);
+          }
         }
-        if (hold > 0 && i >= 2 * kWindow) {
-          EXPECT_GT(held, 0) << "frame " << i;
+        if (i >= 2 * kWindow) {
+          EXPECT_GT(inherited, 0) << "frame " << i;
         }
         const auto summary = SolveDynamicBa(&problem, DynamicBaOptions{});
         ASSERT_TRUE(summary.ok() && summary->usable);
@@ -542,15 +555,17 @@ TEST(ObjectBa, ASlidingWindowHoldsThePointsItInherits) {
       ASSERT_EQ(o.history.back().frame_index, kFrames - 1);
       sum_error += MotionErrorSinceFirstFrame(o, gt);
     }
-    error_of[hold] = sum_error / kSeeds;
-    std::printf(
-        "[car with turning-over points, sliding BA windows, hold %d] error of the motion after "
-        "%d frames %.3f m\n",
-        hold,
-        kFrames,
-        error_of[hold]);
+    error_of[variant] = sum_error / kSeeds;
   }
-  EXPECT_LT(error_of[4], error_of[0]);
+  std::printf(
+      "[car with turning-over points, sliding BA windows] error of the motion after %d frames: "
+      "free %.3f m, prior %.3f m, held %.3f m\n",
+      kFrames,
+      error_of[kFree],
+      error_of[kPrior],
+      error_of[kHeld]);
+  EXPECT_LT(error_of[kPrior], error_of[kFree]);
+  EXPECT_LT(error_of[kHeld], error_of[kFree]);
 }
 
 // The camera's height estimate drifts by 5 mm per frame (the tracker gets
