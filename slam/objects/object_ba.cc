@@ -24,7 +24,7 @@ Eigen::Matrix3d InheritedPointSqrtInformation(const geometry::StereoCamera& came
                                               int observations,
                                               const ObjectBaOptions& options) {
   const Eigen::Vector3d p_cam = object_from_camera.Inverse() * point_in_object;
-  const double z = std::max(p_cam.z(), 0.5);
+  const double z = std::max(p_cam.z(), 0.5);  // a point behind that camera: as at 0.5 m
   const double across = z * options.inherited_point_sigma_px / camera.fx;
   const double along = z * z * options.inherited_point_disparity_sigma_px / camera.bf();
   const Eigen::Vector3d ray = object_from_camera.rotation() * p_cam.normalized();

@@ -82,10 +82,9 @@ struct ObjectBaOptions {
   // the true camera poses (object_depth_bias): its motion's error along the
   // line of sight was 0.097 m RMS over 100 frames (up to 0.18 m, towards
   // the camera), 0.057 m with the prior. 24 rendered runs: moving ATE
-  // 0.1046 -> 0.0965 m
-  // (docs/objects.md section 41). The prior stands for what the dropped
-  // observations said about the point (a marginalisation without their
-  // correlations with the poses).
+  // 0.1046 -> 0.0965 m (docs/objects.md section 41). The prior stands for
+  // what the dropped observations said about the point (a marginalisation
+  // without their correlations with the poses).
   bool inherited_point_prior = true;
   double inherited_point_sigma_px = 0.5;
   double inherited_point_disparity_sigma_px = 0.15;

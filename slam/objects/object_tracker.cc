@@ -785,15 +785,16 @@ bool ObjectTracker::Track(const FrameContext& ctx,
     add_obs(flow_idx[j], *q, u_right, level_scale);
   }
   const Matrix6d projector = o->joint.WorldProjector();
-  // The constrained twist from the current observations, when there are
-  // enough of them and the solver converged.
-  // A car pulling away from a stop is seen as poorly as a new one.
+  // The young object's turn prior, also for one pulling away from a stop:
+  // it is seen as poorly as a new one.
   const int since_hold = o->stationary ? -1 : PosesSinceHold(*o);
   const bool young = static_cast<int>(o->history.size()) < options_.young_turn_prior_poses ||
                      (since_hold >= 0 && since_hold < options_.starting_turn_prior_poses);
   const TwistPrior turn_prior =
       young ? TurnPrior(o->joint, ctx.dt, options_.young_turn_rate_sigma_radps)
             : TurnPrior(o->joint, ctx.dt);
+  // The constrained twist from the current observations, when there are
+  // enough of them and the solver converged.
   auto estimate = [&](const Vector6d& start) -> std::optional<TwistEstimate> {
     if (static_cast<int>(obs.size()) < options_.min_points_to_track) return std::nullopt;
     absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_,
