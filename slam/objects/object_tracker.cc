@@ -26,14 +26,14 @@ int CoastedFrames(const TrackedObject& o) {
   return coasted;
 }
 
-// Poses since the object was last held stationary (the history's samples
-// after its last held one); -1 when the history holds no held sample.
-int PosesSinceHold(const TrackedObject& o) {
-  int moving = 0;
-  for (auto it = o.history.rbegin(); it != o.history.rend(); ++it, ++moving) {
-    if (it->held) return moving;
+// Whether the tracker held the object stationary in one of its last `poses`
+// poses (looks at those only: the history holds up to max_history).
+bool HeldWithin(const TrackedObject& o, int poses) {
+  int k = 0;
+  for (auto it = o.history.rbegin(); it != o.history.rend() && k < poses; ++it, ++k) {
+    if (it->held) return true;
   }
-  return -1;
+  return false;
 }
 
 // Buckets keypoints on a coarse grid for radius look-ups.
@@ -787,9 +787,8 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   const Matrix6d projector = o->joint.WorldProjector();
   // The young object's turn prior, also for one pulling away from a stop:
   // it is seen as poorly as a new one.
-  const int since_hold = o->stationary ? -1 : PosesSinceHold(*o);
   const bool young = static_cast<int>(o->history.size()) < options_.young_turn_prior_poses ||
-                     (since_hold >= 0 && since_hold < options_.starting_turn_prior_poses);
+                     (!o->stationary && HeldWithin(*o, options_.starting_turn_prior_poses));
   const TwistPrior turn_prior =
       young ? TurnPrior(o->joint, ctx.dt, options_.young_turn_rate_sigma_radps)
             : TurnPrior(o->joint, ctx.dt);

@@ -538,8 +538,8 @@ TEST(ObjectBa, ASlidingWindowKeepsWhatItsInheritedPointsWereSeenAs) {
           const Eigen::Matrix3d& a = ba.point_prior_sqrt_information[k];
           EXPECT_EQ(a.isZero(), variant != kPrior || before == 0) << "frame " << i;
           if (!a.isZero()) {
-            // Symmetric, positive definite, and growing with the number of
-            // observations: sqrt(before) times one observation's.
+            // Symmetric positive definite (sqrt(before) times one stereo
+            // observation's square-root information).
             EXPECT_LT((a - a.transpose()).norm(), 1e-9 * a.norm());
             EXPECT_GT(a.selfadjointView<Eigen::Lower>().eigenvalues().minCoeff(), 0.0);
           }
