@@ -15,6 +15,15 @@
 // around the keypoint lies on one plane of the depth buffer (a block matcher
 // has one true disparity there) or straddles a depth edge.
 //
+// Later observations are also compared with the true projection of the
+// physical point they were created on: "along" (mean, then median) is the
+// error along that point's true image motion since the previous frame
+// (> 0: the observation is ahead of the point), "ddisp+" the disparity error
+// signed by the true disparity's change (> 0: the change is overestimated).
+// The steps table's "turn excess" is the estimated minus the true rotation
+// of a step about the true axis (> 0: the object turned too far), and its
+// "turning" row the steps whose true rotation exceeds 1°.
+//
 //   object_depth_bias [--scenario driving,follow_braking] [--frames 100]
 //                     [--seed 1] [--ba 10] [--masked-stereo 1] [--json FILE]
 // --masked-stereo 0 gives the object stage no right image, so object depths
@@ -72,6 +81,11 @@ struct Sample {
   double expansion = 0.0;     // (observed − true) along the ray from the object's image centre,
                               // divided by the true distance to that centre
   double true_scale_step = 0.0;  // true image scale change since the previous frame (ratio − 1)
+  double along = 0.0;  // (observed − true) along the true image motion since the previous frame
+  bool has_along = false;
+  double ddisp_along = 0.0;  // ddisp signed by the true disparity's change since the previous frame
+  bool has_ddisp_along = false;
+  bool turning = false;  // the object turned by more than 1° over the step
 };
 
 double Median(std::vector<double> v) {
@@ -100,6 +114,8 @@ struct Step {
   double err_lateral = 0.0;
   double speed_err_kmh = 0.0;  // |reported speed − true speed|
   double rot_err_deg = 0.0;    // angle of the step's rotation error
+  double turn_deg = 0.0;       // the true step's rotation angle
+  double turn_excess_deg = 0.0;  // estimated − true rotation about the true axis
 };
 
 struct Row {
@@ -208,10 +224,21 @@ void Report(const std::string& scenario, const std::vector<Sample>& samples, std
 void ReportObservations(const std::string& scenario, const std::vector<Sample>& samples) {
   std::printf("\n%s: later observations against the true projection of their creation point\n",
               scenario.c_str());
-  std::printf("  %-28s %6s %8s %8s %8s %9s %10s %10s\n",
-              "group", "n", "med du", "med dv", "med |d|", "med ddisp", "expansion", "true scale");
+  std::printf("  %-28s %6s %8s %8s %8s %9s %10s %10s %8s %8s %8s %8s\n",
+              "group",
+              "n",
+              "med du",
+              "med dv",
+              "med |d|",
+              "med ddisp",
+              "expansion",
+              "true scale",
+              "along",
+              "med al",
+              "ddisp+",
+              "med dd+");
   auto row = [&](const std::string& name, const std::function<bool(const Sample&)>& pred) {
-    std::vector<double> du, dv, dn, dd, ex, ts;
+    std::vector<double> du, dv, dn, dd, ex, ts, al, da;
     for (const Sample& s : samples) {
       if (!s.has_truth_proj || !pred(s)) continue;
       du.push_back(s.du);
@@ -220,11 +247,24 @@ void ReportObservations(const std::string& scenario, const std::vector<Sample>& 
       if (s.stereo) dd.push_back(s.ddisp);
       if (s.expansion != 0.0) ex.push_back(s.expansion);
       ts.push_back(s.true_scale_step);
+      if (s.has_along) al.push_back(s.along);
+      if (s.has_ddisp_along) da.push_back(s.ddisp_along);
     }
     if (du.empty()) return;
-    std::printf("  %-28s %6zu %+8.3f %+8.3f %8.3f %+9.3f %+10.4f %+10.4f\n",
-                name.c_str(), du.size(), Median(du), Median(dv), Median(dn), Median(dd),
-                Median(ex), Median(ts));
+    std::printf(
+        "  %-28s %6zu %+8.3f %+8.3f %8.3f %+9.3f %+10.4f %+10.4f %+8.3f %+8.3f %+8.3f %+8.3f\n",
+        name.c_str(),
+        du.size(),
+        Median(du),
+        Median(dv),
+        Median(dn),
+        Median(dd),
+        Median(ex),
+        Median(ts),
+        Mean(al),
+        Median(al),
+        Mean(da),
+        Median(da));
   };
   row("all", [](const Sample&) { return true; });
   row("keypoint match", [](const Sample& s) { return s.level >= 0; });
@@ -238,6 +278,9 @@ void ReportObservations(const std::string& scenario, const std::vector<Sample>& 
   row("approaching (scale > 2 %)", [](const Sample& s) { return s.true_scale_step > 0.02; });
   row("approaching, keypoint", [](const Sample& s) { return s.true_scale_step > 0.02 && s.level >= 0; });
   row("approaching, patch", [](const Sample& s) { return s.true_scale_step > 0.02 && s.level < 0; });
+  row("turning", [](const Sample& s) { return s.turning; });
+  row("turning, keypoint", [](const Sample& s) { return s.turning && s.level >= 0; });
+  row("turning, patch", [](const Sample& s) { return s.turning && s.level < 0; });
   row("border < 6 px", [](const Sample& s) { return s.border_px < 6; });
   row("border >= 6 px", [](const Sample& s) { return s.border_px >= 6; });
   for (int a : {1, 3, 6, 10, 20}) {
@@ -248,7 +291,7 @@ void ReportObservations(const std::string& scenario, const std::vector<Sample>& 
 void ReportSteps(const std::string& scenario, const std::vector<Step>& steps) {
   std::printf("\n%s: object steps against the ground truth (reported poses and speeds)\n",
               scenario.c_str());
-  std::printf("  %-30s %6s %12s %12s %12s %12s %10s %10s\n",
+  std::printf("  %-30s %6s %12s %12s %12s %12s %10s %10s %10s\n",
               "group",
               "n",
               "radial m/fr",
@@ -256,9 +299,10 @@ void ReportSteps(const std::string& scenario, const std::vector<Step>& steps) {
               "rad/relrad",
               "speed km/h",
               "rot deg",
-              "stationary");
+              "stationary",
+              "turn excess");
   auto row = [&](const std::string& name, const std::function<bool(const Step&)>& pred) {
-    std::vector<double> rad, lat, ratio, spd, rot;
+    std::vector<double> rad, lat, ratio, spd, rot, exc;
     int still = 0;
     for (const Step& s : steps) {
       if (!pred(s)) continue;
@@ -267,10 +311,11 @@ void ReportSteps(const std::string& scenario, const std::vector<Step>& steps) {
       if (std::abs(s.rel_radial) > 0.3) ratio.push_back(s.err_radial / s.rel_radial);
       spd.push_back(s.speed_err_kmh);
       rot.push_back(s.rot_err_deg);
+      exc.push_back(s.turn_excess_deg);
       still += s.stationary ? 1 : 0;
     }
     if (rad.empty()) return;
-    std::printf("  %-30s %6zu %+12.4f %12.4f %+12.4f %12.3f %10.3f %10d\n",
+    std::printf("  %-30s %6zu %+12.4f %12.4f %+12.4f %12.3f %10.3f %10d %+10.3f\n",
                 name.c_str(),
                 rad.size(),
                 Mean(rad),
@@ -278,11 +323,13 @@ void ReportSteps(const std::string& scenario, const std::vector<Step>& steps) {
                 Median(ratio),
                 Mean(spd),
                 Mean(rot),
-                still);
+                still,
+                Mean(exc));
   };
   row("moving", [](const Step& s) { return !s.parked; });
   row("moving, approaching", [](const Step& s) { return !s.parked && s.rel_radial < -0.3; });
   row("moving, receding", [](const Step& s) { return !s.parked && s.rel_radial > 0.3; });
+  row("moving, turning > 1 deg/fr", [](const Step& s) { return !s.parked && s.turn_deg > 1.0; });
   row("moving, z < 15 m", [](const Step& s) { return !s.parked && s.distance < 15; });
   row("moving, z 15-30 m", [](const Step& s) { return !s.parked && s.distance >= 15 && s.distance < 30; });
   row("moving, z >= 30 m", [](const Step& s) { return !s.parked && s.distance >= 30; });
@@ -398,6 +445,11 @@ int Run(const std::string& name,
         const SE3d m_est = res.world_from_object * prev->second.second.Inverse();
         const SE3d m_gt = gt1 * gt0.Inverse();
         st.rot_err_deg = Eigen::AngleAxisd(m_gt.rotation().transpose() * m_est.rotation()).angle() * 180.0 / M_PI;
+        const Eigen::AngleAxisd aa_gt(m_gt.rotation());
+        const Eigen::AngleAxisd aa_est(m_est.rotation());
+        st.turn_deg = aa_gt.angle() * 180.0 / M_PI;
+        st.turn_excess_deg =
+            ((aa_est.angle() * aa_est.axis()).dot(aa_gt.axis()) - aa_gt.angle()) * 180.0 / M_PI;
         steps.push_back(st);
       }
       prev_pose[res.id] = {static_cast<int>(i), res.world_from_object};
@@ -464,6 +516,25 @@ int Run(const std::string& name,
               s.true_scale_step = (prev_camera_from_gt * Eigen::Vector3d(0.0, -0.5 * gt->h, 0.0)).z() /
                                       centre_c.z() - 1.0;
               if (ob.u_right >= 0.0) s.ddisp = (ob.uv.x() - ob.u_right) - bf / pc.z();
+              const Eigen::Vector3d pp = prev_camera_from_gt * tp->second;
+              if (pp.z() > 0.5) {
+                const Eigen::Vector2d uv_prev(cam.fx * pp.x() / pp.z() + cam.cx,
+                                              cam.fy * pp.y() / pp.z() + cam.cy);
+                const Eigen::Vector2d m = uv_true - uv_prev;
+                if (m.norm() > 1.0) {
+                  s.along = (ob.uv - uv_true).dot(m.normalized());
+                  s.has_along = true;
+                }
+                const double dd_true = bf / pc.z() - bf / pp.z();
+                if (ob.u_right >= 0.0 && std::abs(dd_true) > 0.05) {
+                  s.ddisp_along = s.ddisp * (dd_true > 0 ? 1.0 : -1.0);
+                  s.has_ddisp_along = true;
+                }
+              }
+              s.turning =
+                  Eigen::AngleAxisd((gt_wo.rotation().transpose() *
+                                     gt->WorldFromObject(scenario->TimeOf(i - 1)).rotation()))
+                      .angle() > 1.0 * M_PI / 180.0;
             }
           }
         }
