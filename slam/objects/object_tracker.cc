@@ -426,6 +426,27 @@ void ObjectTracker::EvictUnseenPoints(const FrameContext& ctx, TrackedObject* o)
                   o->points.end());
 }
 
+void ObjectTracker::RefreshPatch(const FrameContext& ctx,
+                                 const TrackedObject& object,
+                                 const Eigen::Vector2d& found,
+                                 ObjectPoint* point) const {
+  const double max_turn = options_.patch_refresh_view_change_deg * M_PI / 180.0;
+  if (max_turn <= 0.0 || point->patch.empty()) return;
+  const SE3d camera_from_object = ctx.frame.camera_from_world * object.world_from_object;
+  const Eigen::Vector3d view =
+      (camera_from_object.Inverse().translation() - point->point_in_object).normalized();
+  if (std::acos(std::clamp(view.dot(point->patch_view_in_object), -1.0, 1.0)) <= max_turn) return;
+  Eigen::Vector2d uv;
+  if (!camera_.ProjectChecked(camera_from_object * point->point_in_object, &uv, nullptr, 0.1) ||
+      (uv - found).norm() > options_.patch_refresh_max_offset_px) {
+    return;
+  }
+  cv::Mat patch = TexturedPatch(ctx.frame.left, uv, options_.search.patch_half_size);
+  if (patch.empty()) return;
+  point->patch = std::move(patch);
+  point->patch_view_in_object = view;
+}
+
 void ObjectTracker::AddNewPoints(const FrameContext& ctx,
                                  const ObjectDetectionInput& det,
                                  TrackedObject* o,
@@ -465,6 +486,7 @@ void ObjectTracker::AddNewPoints(const FrameContext& ctx,
     p.sigma_in_object = object_from_camera.rotation() * StereoPointSigma(kps, k, *p_c);
     if (!kps.descriptors.empty()) p.descriptor = kps.descriptors.row(static_cast<int>(k)).clone();
     p.patch = TexturedPatch(ctx.frame.left, kps.uv[k], options_.search.patch_half_size);
+    p.patch_view_in_object = (object_from_camera.translation() - p.point_in_object).normalized();
     p.last_uv = kps.uv[k];
     p.seen_last_frame = true;
     p.num_observations = 1;
@@ -537,6 +559,9 @@ bool ObjectTracker::Create(const FrameContext& ctx,
                         StereoPointSigma(kps, k, p_cam[kept[m]]);
     if (!kps.descriptors.empty()) p.descriptor = kps.descriptors.row(static_cast<int>(k)).clone();
     p.patch = TexturedPatch(ctx.frame.left, kps.uv[k], options_.search.patch_half_size);
+    p.patch_view_in_object =
+        ((object_from_world * ctx.world_from_camera).translation() - p.point_in_object)
+            .normalized();
     p.last_uv = kps.uv[k];
     p.seen_last_frame = true;
     p.num_observations = 1;
@@ -993,6 +1018,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   for (size_t j = 0; j < obs.size(); ++j) {
     if (!est->inliers[j]) continue;
     ObjectPoint& p = o->points[obs_point[j]];
+    RefreshPatch(ctx, *o, obs[j].uv, &p);
     p.last_uv = obs[j].uv;
     p.seen_last_frame = true;
     ++p.num_observations;
@@ -1112,6 +1138,7 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
   for (size_t j = 0; j < obs.size(); ++j) {
     if (!est->inliers[j]) continue;
     ObjectPoint& p = o->points[obs_point[j]];
+    RefreshPatch(ctx, *o, obs[j].uv, &p);
     p.last_uv = obs[j].uv;
     p.seen_last_frame = true;
     ++p.num_observations;
@@ -1173,6 +1200,7 @@ void ObjectTracker::Continue(const SE3d& predicted,
     p.id = lost->next_point_id++;
     p.point_in_object = lost_from_created * p.point_in_object;
     p.sigma_in_object = lost_from_created.rotation() * p.sigma_in_object;
+    p.patch_view_in_object = lost_from_created.rotation() * p.patch_view_in_object;
     lost->points.push_back(std::move(p));
   }
   lost->pending_observations.clear();

@@ -526,7 +526,8 @@ void WriteTrackedObject(const objects::TrackedObject& o, BinaryWriter* w) {
     WriteVec(p.last_uv, w);
     w->Pod<uint8_t>(p.seen_last_frame);
     w->Pod<int32_t>(p.num_observations);
-    WriteVec(p.sigma_in_object, w);  // format 8
+    WriteVec(p.sigma_in_object, w);       // format 8
+    WriteVec(p.patch_view_in_object, w);  // format 13
   }
   w->Pod<int32_t>(o.frames_lost);
   w->Pod(o.last_seen_frame);
@@ -562,7 +563,8 @@ objects::TrackedObject ReadTrackedObject(BinaryReader* r, uint32_t version) {
   o.world_from_object = r->Pose();
   o.twist_step = ReadVec<geometry::Vector6d>(r);
   o.step_seconds = r->Pod<double>();
-  const uint64_t np = r->Count(version >= 8 ? 101 : 77);  // the smallest point (empty images)
+  // The smallest point (empty images).
+  const uint64_t np = r->Count(version >= 13 ? 125 : version >= 8 ? 101 : 77);
   o.points.reserve(np);
   for (uint64_t k = 0; k < np && r->ok(); ++k) {
     objects::ObjectPoint p;
@@ -575,6 +577,10 @@ objects::TrackedObject ReadTrackedObject(BinaryReader* r, uint32_t version) {
     p.num_observations = r->Pod<int32_t>();
     // Before format 8 the points' own noise was not kept: they count as exact.
     if (version >= 8) p.sigma_in_object = ReadVec<Eigen::Vector3d>(r);
+    // Before format 13 the view of a point's patch was not kept: with
+    // patch_refresh_view_change_deg on, the patch is taken again at its next
+    // match.
+    if (version >= 13) p.patch_view_in_object = ReadVec<Eigen::Vector3d>(r);
     o.points.push_back(std::move(p));
   }
   o.frames_lost = r->Pod<int32_t>();
@@ -862,7 +868,7 @@ absl::Status ObjectStage::Read(BinaryReader* r, uint32_t version) {
     }
     for (const objects::ObjectPoint& p : o.points) {
       if (!p.point_in_object.allFinite() || !p.sigma_in_object.allFinite() ||
-          !p.last_uv.allFinite())
+          !p.patch_view_in_object.allFinite() || !p.last_uv.allFinite())
         return corrupt("object point");
       // ORB descriptors (32 bytes) and square patches of the tracker's size.
       if (!p.descriptor.empty() &&

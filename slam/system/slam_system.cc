@@ -58,7 +58,11 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // 12: + each plane class's camera-frame points and plane
 // (ObjectStageOptions::camera_plane_frames). Older files load with none: the
 // planar joints take the world fit until new frames bring enough points.
-constexpr uint32_t kFormatVersion = 12;
+// 13: + each object point's view when its patch was taken
+// (ObjectPoint::patch_view_in_object). Older files load with none: with
+// ObjectTrackerOptions::patch_refresh_view_change_deg on, each patch is taken
+// again at the point's next match.
+constexpr uint32_t kFormatVersion = 13;
 // Covisible keyframes in the local BA with dense keyframes (SlamOptions).
 constexpr int kDenseLocalBaKeyFrames = 8;
 

@@ -416,9 +416,9 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   uint32_t version = 0;
   std::memcpy(&version, &data[8], sizeof(version));
-  ASSERT_EQ(version, 12u);
-  // Without the object stage a format-12 file is a format-10 one (formats 11
-  // and 12 only add to the object stage). Format 10's block ends with its
+  ASSERT_EQ(version, 13u);
+  // Without the object stage a format-13 file is a format-10 one (formats 11
+  // to 13 only add to the object stage). Format 10's block ends with its
   // length, before the 8-byte trailer.
   uint64_t block = 0;
   std::memcpy(&block, &data[data.size() - 16], sizeof(block));
