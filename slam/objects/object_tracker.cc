@@ -229,6 +229,12 @@ absl::Status ObjectTrackerOptions::Validate() const {
   if (std::isnan(turn_rate_sigma_radps)) {
     return absl::InvalidArgumentError("object tracker turn_rate_sigma_radps must be a number");
   }
+  if (!(patch_refresh_view_change_deg >= 0.0 && patch_refresh_view_change_deg <= 180.0) ||
+      !(patch_refresh_max_offset_px >= 0.0)) {
+    return absl::InvalidArgumentError(
+        "object tracker needs patch_refresh_view_change_deg in [0, 180] and "
+        "patch_refresh_max_offset_px >= 0");
+  }
   return absl::OkStatus();
 }
 

@@ -1419,6 +1419,18 @@ TEST(ObjectTracker, RejectsMalformedInput) {
   EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
   options.restart_filter_after_refusals = 2;
   EXPECT_TRUE(options.Validate().ok());
+  for (double bad : {-1.0, 181.0, std::nan("")}) {
+    options.patch_refresh_view_change_deg = bad;
+    EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
+  }
+  options.patch_refresh_view_change_deg = 5.0;
+  EXPECT_TRUE(options.Validate().ok());
+  for (double bad : {-0.5, std::nan("")}) {
+    options.patch_refresh_max_offset_px = bad;
+    EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
+  }
+  options.patch_refresh_max_offset_px = 1.0;
+  EXPECT_TRUE(options.Validate().ok());
 }
 
 }  // namespace
