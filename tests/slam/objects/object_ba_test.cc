@@ -3,7 +3,6 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Eigenvalues>
-#include <Eigen/Geometry>
 #include <cmath>
 #include <cstdio>
 #include <map>
@@ -568,14 +567,6 @@ TEST(ObjectBa, ASlidingWindowKeepsWhatItsInheritedPointsWereSeenAs) {
       error_of[kHeld]);
   EXPECT_LT(error_of[kPrior], error_of[kFree]);
   EXPECT_LT(error_of[kHeld], error_of[kFree]);
-}
-
-// The rotation of a step about the true step's axis, minus the true one
-// (> 0: the estimate turned too far), in degrees.
-double TurnExcessDeg(const SE3d& est_step, const SE3d& true_step) {
-  const Eigen::AngleAxisd e(est_step.rotation());
-  const Eigen::AngleAxisd t(true_step.rotation());
-  return ((e.angle() * e.axis()).dot(t.axis()) - t.angle()) * 180.0 / M_PI;
 }
 
 // A car turning at 4° per frame from its first frame (exact flow, 0.5 px

@@ -23,6 +23,7 @@
 #include "slam/semantic/plane_fitting.h"
 #include "slam/sim/renderer.h"
 #include "slam/sim/scenarios.h"
+#include "tests/slam/objects/synthetic_objects.h"
 
 namespace twist::objects {
 namespace {
@@ -261,17 +262,11 @@ std::map<int, TrackStats> RunScenario(
         ++st.speed_n;
       }
       if (prev_pose.count(o.id) > 0 && i > f0) {
-        const Eigen::AngleAxisd est_step(
-            (o.world_from_object * prev_pose[o.id].first.Inverse()).rotation());
-        const Eigen::AngleAxisd gt_step((gti * prev_pose[o.id].second.Inverse()).rotation());
-        if (gt_step.angle() > M_PI / 180.0) {
-          st.turn_excess_sum +=
-              ((est_step.angle() * est_step.axis()).dot(gt_step.axis()) - gt_step.angle()) * 180.0 /
-              M_PI;
-          st.turn_error_sum += Eigen::AngleAxisd(gt_step.toRotationMatrix().transpose() *
-                                                 est_step.toRotationMatrix())
-                                   .angle() *
-                               180.0 / M_PI;
+        const SE3d est_step = o.world_from_object * prev_pose[o.id].first.Inverse();
+        const SE3d gt_step = gti * prev_pose[o.id].second.Inverse();
+        if (gt_step.so3().Log().norm() > M_PI / 180.0) {
+          st.turn_excess_sum += testing::TurnExcessDeg(est_step, gt_step);
+          st.turn_error_sum += testing::RotationErrorDeg(est_step, gt_step);
           ++st.turn_n;
         }
       }

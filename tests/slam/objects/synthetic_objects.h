@@ -112,5 +112,12 @@ inline double RotationErrorDeg(const SE3d& a, const SE3d& b) {
 inline double TranslationError(const SE3d& a, const SE3d& b) {
   return (a.translation() - b.translation()).norm();
 }
+// The rotation of a step about the true step's axis, minus the true one
+// (> 0: the estimate turned too far), in degrees.
+inline double TurnExcessDeg(const SE3d& est_step, const SE3d& true_step) {
+  const Eigen::AngleAxisd e(est_step.rotation());
+  const Eigen::AngleAxisd t(true_step.rotation());
+  return ((e.angle() * e.axis()).dot(t.axis()) - t.angle()) * 180.0 / M_PI;
+}
 
 }  // namespace twist::objects::testing
