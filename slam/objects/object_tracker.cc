@@ -453,6 +453,30 @@ void ObjectTracker::RefreshPatch(const FrameContext& ctx,
   point->patch_view_in_object = view;
 }
 
+void ObjectTracker::RecordInliers(const FrameContext& ctx,
+                                  const ObjectDetectionInput& det,
+                                  const TwistEstimate& est,
+                                  const std::vector<TwistObservation>& obs,
+                                  const std::vector<size_t>& obs_point,
+                                  TrackedObject* o) {
+  o->last_num_inliers = est.num_inliers;
+  o->last_sigma_px = est.sigma_px;
+  for (ObjectPoint& p : o->points) p.seen_last_frame = false;
+  std::vector<Eigen::Vector2d> occupied;
+  for (size_t j = 0; j < obs.size(); ++j) {
+    if (!est.inliers[j]) continue;
+    ObjectPoint& p = o->points[obs_point[j]];
+    RefreshPatch(ctx, *o, obs[j].uv, &p);
+    p.last_uv = obs[j].uv;
+    p.seen_last_frame = true;
+    ++p.num_observations;
+    o->pending_observations.push_back(
+        {p.id, obs[j].uv, obs[j].u_right, obs[j].disparity_noise_ratio});
+    occupied.push_back(obs[j].uv);
+  }
+  AddNewPoints(ctx, det, o, occupied);
+}
+
 void ObjectTracker::AddNewPoints(const FrameContext& ctx,
                                  const ObjectDetectionInput& det,
                                  TrackedObject* o,
@@ -1017,22 +1041,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   o->step_seconds = ctx.dt;
   o->twist_covariance_valid = filtered && !o->stationary && est->covariance_valid;
   o->twist_covariance = o->twist_covariance_valid ? est->covariance : Matrix6d::Zero();
-  o->last_num_inliers = est->num_inliers;
-  o->last_sigma_px = est->sigma_px;
-  for (ObjectPoint& p : o->points) p.seen_last_frame = false;
-  std::vector<Eigen::Vector2d> occupied;
-  for (size_t j = 0; j < obs.size(); ++j) {
-    if (!est->inliers[j]) continue;
-    ObjectPoint& p = o->points[obs_point[j]];
-    RefreshPatch(ctx, *o, obs[j].uv, &p);
-    p.last_uv = obs[j].uv;
-    p.seen_last_frame = true;
-    ++p.num_observations;
-    o->pending_observations.push_back(
-        {p.id, obs[j].uv, obs[j].u_right, obs[j].disparity_noise_ratio});
-    occupied.push_back(obs[j].uv);
-  }
-  AddNewPoints(ctx, det, o, occupied);
+  RecordInliers(ctx, det, *est, obs, obs_point, o);
   return true;
 }
 
@@ -1137,22 +1146,7 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
   o->twist_covariance =
       o->twist_covariance_valid ? Matrix6d(est->covariance / (n * n)) : Matrix6d::Zero();
   o->step_seconds = ctx.dt;
-  o->last_num_inliers = est->num_inliers;
-  o->last_sigma_px = est->sigma_px;
-  for (ObjectPoint& p : o->points) p.seen_last_frame = false;
-  std::vector<Eigen::Vector2d> occupied;
-  for (size_t j = 0; j < obs.size(); ++j) {
-    if (!est->inliers[j]) continue;
-    ObjectPoint& p = o->points[obs_point[j]];
-    RefreshPatch(ctx, *o, obs[j].uv, &p);
-    p.last_uv = obs[j].uv;
-    p.seen_last_frame = true;
-    ++p.num_observations;
-    o->pending_observations.push_back(
-        {p.id, obs[j].uv, obs[j].u_right, obs[j].disparity_noise_ratio});
-    occupied.push_back(obs[j].uv);
-  }
-  AddNewPoints(ctx, det, o, occupied);
+  RecordInliers(ctx, det, *est, obs, obs_point, o);
   return true;
 }
 

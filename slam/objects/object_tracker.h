@@ -617,6 +617,16 @@ class ObjectTracker {
                     const TrackedObject& object,
                     const Eigen::Vector2d& found,
                     ObjectPoint* point) const;
+  // After a step (tracked or re-acquired) with estimate `est` on
+  // observations `obs` of the points `obs_point`: the inliers become the
+  // points' observations of this frame (pending for the pose history), and
+  // new points are added where none was seen.
+  void RecordInliers(const FrameContext& ctx,
+                     const ObjectDetectionInput& det,
+                     const TwistEstimate& est,
+                     const std::vector<TwistObservation>& obs,
+                     const std::vector<size_t>& obs_point,
+                     TrackedObject* object);
   void AddNewPoints(const FrameContext& ctx,
                     const ObjectDetectionInput& det,
                     TrackedObject* object,
