@@ -433,15 +433,16 @@ void ObjectTracker::EvictUnseenPoints(const FrameContext& ctx, TrackedObject* o)
 }
 
 void ObjectTracker::RefreshPatch(const FrameContext& ctx,
-                                 const TrackedObject& object,
+                                 const SE3d& camera_from_object,
+                                 const Eigen::Vector3d& camera_in_object,
                                  const Eigen::Vector2d& found,
                                  ObjectPoint* point) const {
-  const double max_turn = options_.patch_refresh_view_change_deg * M_PI / 180.0;
-  if (max_turn <= 0.0 || point->patch.empty()) return;
-  const SE3d camera_from_object = ctx.frame.camera_from_world * object.world_from_object;
-  const Eigen::Vector3d view =
-      (camera_from_object.Inverse().translation() - point->point_in_object).normalized();
-  if (std::acos(std::clamp(view.dot(point->patch_view_in_object), -1.0, 1.0)) <= max_turn) return;
+  if (point->patch.empty()) return;
+  const Eigen::Vector3d view = (camera_in_object - point->point_in_object).normalized();
+  if (std::acos(std::clamp(view.dot(point->patch_view_in_object), -1.0, 1.0)) <=
+      options_.patch_refresh_view_change_deg * M_PI / 180.0) {
+    return;
+  }
   Eigen::Vector2d uv;
   if (!camera_.ProjectChecked(camera_from_object * point->point_in_object, &uv, nullptr, 0.1) ||
       (uv - found).norm() > options_.patch_refresh_max_offset_px) {
@@ -462,11 +463,15 @@ void ObjectTracker::RecordInliers(const FrameContext& ctx,
   o->last_num_inliers = est.num_inliers;
   o->last_sigma_px = est.sigma_px;
   for (ObjectPoint& p : o->points) p.seen_last_frame = false;
+  // The step's pose, for the patch refresh (once per step, not per point).
+  const bool refresh = options_.patch_refresh_view_change_deg > 0.0;
+  const SE3d camera_from_object = ctx.frame.camera_from_world * o->world_from_object;
+  const Eigen::Vector3d camera_in_object = camera_from_object.Inverse().translation();
   std::vector<Eigen::Vector2d> occupied;
   for (size_t j = 0; j < obs.size(); ++j) {
     if (!est.inliers[j]) continue;
     ObjectPoint& p = o->points[obs_point[j]];
-    RefreshPatch(ctx, *o, obs[j].uv, &p);
+    if (refresh) RefreshPatch(ctx, camera_from_object, camera_in_object, obs[j].uv, &p);
     p.last_uv = obs[j].uv;
     p.seen_last_frame = true;
     ++p.num_observations;

@@ -612,9 +612,12 @@ class ObjectTracker {
   // observation of its last evict_unseen_frames frames saw.
   void EvictUnseenPoints(const FrameContext& ctx, TrackedObject* o) const;
   // Takes the point's reference patch again when the view of it has turned
-  // (patch_refresh_view_change_deg); `found` is where this frame found it.
+  // (patch_refresh_view_change_deg > 0); the step's pose is
+  // `camera_from_object` (the camera's centre `camera_in_object`), `found`
+  // is where this frame found the point.
   void RefreshPatch(const FrameContext& ctx,
-                    const TrackedObject& object,
+                    const geometry::SE3d& camera_from_object,
+                    const Eigen::Vector3d& camera_in_object,
                     const Eigen::Vector2d& found,
                     ObjectPoint* point) const;
   // After a step (tracked or re-acquired) with estimate `est` on
