@@ -117,6 +117,18 @@ double MaxTrajectoryError(const TrackedObject& o, const std::map<int64_t, SE3d>&
   return max_error;
 }
 
+// Solves `problem` (it must converge to a usable solution) and writes the
+// result back into `tracker`.
+void SolveAndApply(DynamicBaProblem* problem,
+                   const std::vector<ObjectBaLink>& links,
+                   const ObjectBaOptions& options,
+                   ObjectTracker* tracker,
+                   const DynamicBaOptions& ba_options = DynamicBaOptions{}) {
+  const auto summary = SolveDynamicBa(problem, ba_options);
+  ASSERT_TRUE(summary.ok() && summary->usable);
+  ApplyBaToTrackedObjects(*problem, links, options, tracker);
+}
+
 // Tracker output refined by the dynamic BA over the whole window: the
 // object's trajectory error (motion since its first frame) goes down.
 TEST(ObjectBa, TrackerWindowRefinedByDynamicBa) {
@@ -187,9 +199,7 @@ TEST(ObjectBa, TheWrittenBackTwistIsTheMeanOfTheLastSteps) {
       ObjectBaOptions options;
       options.twist_steps = steps;
       const auto links = AddTrackedObjectsToBa(tracker, keyframe_of_frame, options, &problem);
-      const auto summary = SolveDynamicBa(&problem, DynamicBaOptions{});
-      ASSERT_TRUE(summary.ok() && summary->usable);
-      ApplyBaToTrackedObjects(problem, links, options, &tracker);
+      SolveAndApply(&problem, links, options, &tracker);
       const TrackedObject& o = tracker.objects().begin()->second;
       const size_t n = o.history.size();
       ASSERT_EQ(n, 10u);
@@ -242,9 +252,7 @@ TEST(ObjectBa, HeldFramesStayAndLostObjectsAreLeftOut) {
     const bool next_held = k + 1 < 12 && o.history[k + 1].held;
     EXPECT_EQ(ba.frames[k].fixed, k == 0 || o.history[k].held || next_held) << "frame " << k;
   }
-  const auto summary = SolveDynamicBa(&problem, DynamicBaOptions{});
-  ASSERT_TRUE(summary.ok() && summary->usable);
-  ApplyBaToTrackedObjects(problem, links, ObjectBaOptions{}, &tracker);
+  SolveAndApply(&problem, links, ObjectBaOptions{}, &tracker);
   const TrackedObject& after = tracker.objects().begin()->second;
   for (size_t k = 0; k < 12; ++k) {
     const bool next_held = k + 1 < 12 && after.history[k + 1].held;
@@ -337,9 +345,7 @@ TEST(ObjectBa, AContinuedTrackKeepsItsPoseAfterTheGap) {
       after_gap.follows_previous = true;
       after_gap.fixed = false;
     }
-    const auto summary = SolveDynamicBa(&problem, DynamicBaOptions{});
-    ASSERT_TRUE(summary.ok() && summary->usable);
-    ApplyBaToTrackedObjects(problem, links, ObjectBaOptions{}, &tracker);
+    SolveAndApply(&problem, links, ObjectBaOptions{}, &tracker);
     const double max_error = MaxTrajectoryError(o, gt);
     std::printf("[continued track in the BA, %s] max trajectory error %.3f m\n",
                 as_before ? "term across the gap, pose free" : "now",
@@ -405,9 +411,7 @@ TEST(ObjectBa, CoastedFramesStayWhereTheTrackerPutThem) {
         ASSERT_EQ(links.size(), 1u);
         ASSERT_EQ(problem.objects[0].frames.size(), n);
         EXPECT_EQ(problem.objects[0].frames[n - 1].fixed, coasted && fix) << "frame " << i;
-        const auto summary = SolveDynamicBa(&problem, ba);
-        ASSERT_TRUE(summary.ok() && summary->usable);
-        ApplyBaToTrackedObjects(problem, links, options, &tracker);
+        SolveAndApply(&problem, links, options, &tracker, ba);
         if (coasted && fix) {
           EXPECT_LT((o.world_from_object.translation() - predicted.translation()).norm(), 1e-12);
           EXPECT_LT(RotationErrorDeg(o.world_from_object, predicted), 1e-9);
@@ -466,9 +470,7 @@ TEST(ObjectBa, ASlidingWindowKeepsTheVelocityAtItsGauge) {
         ASSERT_GE(problem.objects[0].frames.size(), 3u);
         EXPECT_TRUE(problem.objects[0].frames[0].fixed);
         EXPECT_EQ(problem.objects[0].frames[1].fixed, keep && slid) << "frame " << i;
-        const auto summary = SolveDynamicBa(&problem, DynamicBaOptions{});
-        ASSERT_TRUE(summary.ok() && summary->usable);
-        ApplyBaToTrackedObjects(problem, links, options, &tracker);
+        SolveAndApply(&problem, links, options, &tracker);
       }
       const TrackedObject& o = tracker.objects().begin()->second;
       ASSERT_EQ(o.history.back().frame_index, kFrames - 1);
@@ -548,9 +550,7 @@ TEST(ObjectBa, ASlidingWindowKeepsWhatItsInheritedPointsWereSeenAs) {
         if (i >= 2 * kWindow) {
           EXPECT_GT(inherited, 0) << "frame " << i;
         }
-        const auto summary = SolveDynamicBa(&problem, DynamicBaOptions{});
-        ASSERT_TRUE(summary.ok() && summary->usable);
-        ApplyBaToTrackedObjects(problem, links, options, &tracker);
+        SolveAndApply(&problem, links, options, &tracker);
       }
       const TrackedObject& o = tracker.objects().begin()->second;
       ASSERT_EQ(o.history.back().frame_index, kFrames - 1);
@@ -602,9 +602,7 @@ TEST(ObjectBa, ASlidingWindowFollowsATurningCar) {
           DynamicBaProblem problem = seen.Window(seq.camera(), 10, &keyframe_of_frame);
           const auto links = AddTrackedObjectsToBa(tracker, keyframe_of_frame, options, &problem);
           if (!links.empty()) {
-            const auto summary = SolveDynamicBa(&problem, DynamicBaOptions{});
-            ASSERT_TRUE(summary.ok() && summary->usable);
-            ApplyBaToTrackedObjects(problem, links, options, &tracker);
+            SolveAndApply(&problem, links, options, &tracker);
           }
         }
         const TrackedObject& o = tracker.objects().begin()->second;
