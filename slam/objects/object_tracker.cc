@@ -95,13 +95,38 @@ bool InsideDetection(const ObjectDetectionInput& det,
 }
 
 // Reference patch for the NCC search; none on untextured areas, where the
-// correlation is meaningless.
-cv::Mat TexturedPatch(const cv::Mat& image, const Eigen::Vector2d& uv, int half_size) {
+// correlation is meaningless. With a mask, the pixels off it are NaN (left
+// out of the masked search), and there is no patch when less than
+// `min_share` of it is on the mask.
+cv::Mat TexturedPatch(const cv::Mat& image,
+                      const Eigen::Vector2d& uv,
+                      int half_size,
+                      const cv::Mat& mask = cv::Mat(),
+                      double min_share = 0.5) {
   cv::Mat patch = ExtractPatch(image, uv, half_size);
   if (patch.empty()) return patch;
+  cv::Mat valid;
+  if (!mask.empty()) {
+    valid = cv::Mat(patch.size(), CV_8UC1, cv::Scalar(0));
+    for (int y = 0; y < patch.rows; ++y) {
+      for (int x = 0; x < patch.cols; ++x) {
+        // On the object when every pixel of its bilinear sample is.
+        const int mx = static_cast<int>(std::floor(uv.x() + x - half_size));
+        const int my = static_cast<int>(std::floor(uv.y() + y - half_size));
+        if (mx >= 0 && my >= 0 && mx + 1 < mask.cols && my + 1 < mask.rows &&
+            mask.at<uint8_t>(my, mx) && mask.at<uint8_t>(my, mx + 1) &&
+            mask.at<uint8_t>(my + 1, mx) && mask.at<uint8_t>(my + 1, mx + 1))
+          valid.at<uint8_t>(y, x) = 1;
+      }
+    }
+    if (cv::countNonZero(valid) < std::max(4.0, min_share * static_cast<double>(patch.total())))
+      return cv::Mat();
+  }
   cv::Scalar mean, stddev;
-  cv::meanStdDev(patch, mean, stddev);
-  return stddev[0] >= 2.0 ? patch : cv::Mat();
+  cv::meanStdDev(patch, mean, stddev, valid);
+  if (stddev[0] < 2.0) return cv::Mat();
+  if (!valid.empty()) patch.setTo(std::numeric_limits<float>::quiet_NaN(), valid == 0);
+  return patch;
 }
 
 // New points must sit well inside the mask: keypoints on the boundary
@@ -228,6 +253,12 @@ absl::Status ObjectTrackerOptions::Validate() const {
   }
   if (std::isnan(turn_rate_sigma_radps)) {
     return absl::InvalidArgumentError("object tracker turn_rate_sigma_radps must be a number");
+  }
+  if (!(search.min_masked_patch_share > 0.0 && search.min_masked_patch_share <= 1.0) ||
+      search.patch_gauss_newton_iterations < 0) {
+    return absl::InvalidArgumentError(
+        "object tracker needs search.min_masked_patch_share in (0, 1] and "
+        "search.patch_gauss_newton_iterations >= 0");
   }
   if (!(patch_refresh_view_change_deg >= 0.0 && patch_refresh_view_change_deg <= 180.0) ||
       !(patch_refresh_max_offset_px >= 0.0)) {
@@ -432,7 +463,18 @@ void ObjectTracker::EvictUnseenPoints(const FrameContext& ctx, TrackedObject* o)
                   o->points.end());
 }
 
+cv::Mat ObjectTracker::PointPatch(const FrameContext& ctx,
+                                  const ObjectDetectionInput& det,
+                                  const Eigen::Vector2d& uv) const {
+  return TexturedPatch(ctx.frame.left,
+                       uv,
+                       options_.search.patch_half_size,
+                       options_.masked_patches ? det.mask : cv::Mat(),
+                       options_.search.min_masked_patch_share);
+}
+
 void ObjectTracker::RefreshPatch(const FrameContext& ctx,
+                                 const ObjectDetectionInput& det,
                                  const SE3d& camera_from_object,
                                  const Eigen::Vector3d& camera_in_object,
                                  const Eigen::Vector2d& found,
@@ -448,7 +490,7 @@ void ObjectTracker::RefreshPatch(const FrameContext& ctx,
       (uv - found).norm() > options_.patch_refresh_max_offset_px) {
     return;
   }
-  cv::Mat patch = TexturedPatch(ctx.frame.left, uv, options_.search.patch_half_size);
+  cv::Mat patch = PointPatch(ctx, det, uv);
   if (patch.empty()) return;
   point->patch = std::move(patch);
   point->patch_view_in_object = view;
@@ -471,7 +513,7 @@ void ObjectTracker::RecordInliers(const FrameContext& ctx,
   for (size_t j = 0; j < obs.size(); ++j) {
     if (!est.inliers[j]) continue;
     ObjectPoint& p = o->points[obs_point[j]];
-    if (refresh) RefreshPatch(ctx, camera_from_object, camera_in_object, obs[j].uv, &p);
+    if (refresh) RefreshPatch(ctx, det, camera_from_object, camera_in_object, obs[j].uv, &p);
     p.last_uv = obs[j].uv;
     p.seen_last_frame = true;
     ++p.num_observations;
@@ -520,7 +562,7 @@ void ObjectTracker::AddNewPoints(const FrameContext& ctx,
     p.point_in_object = object_from_camera * *p_c;
     p.sigma_in_object = object_from_camera.rotation() * StereoPointSigma(kps, k, *p_c);
     if (!kps.descriptors.empty()) p.descriptor = kps.descriptors.row(static_cast<int>(k)).clone();
-    p.patch = TexturedPatch(ctx.frame.left, kps.uv[k], options_.search.patch_half_size);
+    p.patch = PointPatch(ctx, det, kps.uv[k]);
     p.patch_view_in_object = (object_from_camera.translation() - p.point_in_object).normalized();
     p.last_uv = kps.uv[k];
     p.seen_last_frame = true;
@@ -593,7 +635,7 @@ bool ObjectTracker::Create(const FrameContext& ctx,
     p.sigma_in_object = (object_from_world * ctx.world_from_camera).rotation() *
                         StereoPointSigma(kps, k, p_cam[kept[m]]);
     if (!kps.descriptors.empty()) p.descriptor = kps.descriptors.row(static_cast<int>(k)).clone();
-    p.patch = TexturedPatch(ctx.frame.left, kps.uv[k], options_.search.patch_half_size);
+    p.patch = PointPatch(ctx, det, kps.uv[k]);
     p.patch_view_in_object =
         ((object_from_world * ctx.world_from_camera).translation() - p.point_in_object)
             .normalized();
@@ -922,7 +964,10 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       if (!camera_.ProjectChecked(camera_from_object * pts[k], &uv, nullptr, 0.1) ||
           !camera_.InImage(uv, 8))
         continue;
-      const auto found = PatchSearch(f.left, o->points[k].patch, uv, options_.search);
+      const auto found =
+          options_.masked_patches
+              ? MaskedPatchSearch(f.left, o->points[k].patch, det.mask, uv, options_.search)
+              : PatchSearch(f.left, o->points[k].patch, uv, options_.search);
       if (!found || !InsideDetection(det, *found, 2.0)) continue;
       double level_scale = 1.0;
       const double u_right = stereo_at(*found, k, &level_scale);

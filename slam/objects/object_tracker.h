@@ -192,6 +192,14 @@ struct ObjectTrackerOptions {
   // the estimate, refreshed at every match: ATE 0.1231 m (a drift).
   double patch_refresh_view_change_deg = 0.0;
   double patch_refresh_max_offset_px = 1.0;
+  // Reference patches keep only the pixels on the object's mask (the others
+  // NaN; none when less than search.min_masked_patch_share of the patch is
+  // on it), and the patch search correlates only the pixels on the object in
+  // both views (MaskedPatchSearch), refined by Gauss–Newton. Off: the
+  // moving cars' ATE improves (`follow_braking` 0.104 → 0.087 m), but their
+  // rotation does not, and cars starting from rest go wrong
+  // (`stationary_then_accelerating` 0.096 → 0.169 m; docs/objects.md §44).
+  bool masked_patches = false;
   bool constrained = true;  // false: every object is a free 6-DoF body
   // A planar object is created with its origin on its parent plane, and its
   // steps keep it there. When the parent plane is refitted, a moving object
@@ -611,11 +619,17 @@ class ObjectTracker {
   // Removes the points of a full object (max_points_per_object) that no
   // observation of its last evict_unseen_frames frames saw.
   void EvictUnseenPoints(const FrameContext& ctx, TrackedObject* o) const;
+  // A point's reference patch at uv of this frame's left image (empty on
+  // untextured areas); with masked_patches, its pixels off det's mask NaN.
+  cv::Mat PointPatch(const FrameContext& ctx,
+                     const ObjectDetectionInput& det,
+                     const Eigen::Vector2d& uv) const;
   // Takes the point's reference patch again when the view of it has turned
   // (patch_refresh_view_change_deg > 0); the step's pose is
   // `camera_from_object` (the camera's centre `camera_in_object`), `found`
   // is where this frame found the point.
   void RefreshPatch(const FrameContext& ctx,
+                    const ObjectDetectionInput& det,
                     const geometry::SE3d& camera_from_object,
                     const Eigen::Vector3d& camera_in_object,
                     const Eigen::Vector2d& found,

@@ -141,6 +141,151 @@ Eigen::Vector2d ParabolaPeakOffset(const cv::Mat& scores, int cx, int cy) {
   return Eigen::Vector2d(ox, oy);
 }
 
+namespace {
+
+// A patch search's correlation at every integer offset (dx, dy) within
+// options.patch_search_radius_px of `predicted` whose (2h+1)² window lies
+// inside the image. One bilinear region covers every offset: the window of
+// offset (dx, dy) is its sub-block at (r + dx, r + dy), the patch
+// ExtractPatch would take at predicted + (dx, dy) (up to the float rounding
+// of the centre). `score(region, r, dx, dy)` gives an offset's correlation, or
+// nullopt to leave it unscored (−2 in the grid).
+struct OffsetScores {
+  cv::Mat scores;  // CV_64F, (2r + 1)², offset (dx, dy) at (r + dy, r + dx)
+  int r = 0;
+  double best = -2.0;
+  int bx = 0, by = 0;
+
+  // The best offset's sub-pixel position (ParabolaPeakOffset), or nullopt
+  // when its correlation is below min_ncc.
+  std::optional<Eigen::Vector2d> Vertex(const Eigen::Vector2d& predicted, double min_ncc) const {
+    if (best < min_ncc) return std::nullopt;
+    return predicted + (Eigen::Vector2d(bx, by) + ParabolaPeakOffset(scores, bx + r, by + r));
+  }
+};
+
+template <typename Score>
+OffsetScores ScoreOffsets(const cv::Mat& image,
+                          int h,
+                          const Eigen::Vector2d& predicted,
+                          const ProjectionSearchOptions& options,
+                          Score&& score) {
+  const int side = 2 * h + 1;
+  OffsetScores out;
+  const int r = out.r = static_cast<int>(std::ceil(options.patch_search_radius_px));
+  cv::Mat region;
+  cv::getRectSubPix(
+      image,
+      cv::Size(side + 2 * r, side + 2 * r),
+      cv::Point2f(static_cast<float>(predicted.x()), static_cast<float>(predicted.y())),
+      region,
+      CV_32F);
+  out.scores = cv::Mat(2 * r + 1, 2 * r + 1, CV_64F, cv::Scalar(-2.0));
+  for (int dy = -r; dy <= r; ++dy) {
+    for (int dx = -r; dx <= r; ++dx) {
+      if (dx * dx + dy * dy >
+          options.patch_search_radius_px * options.patch_search_radius_px + 1e-9)
+        continue;
+      // ExtractPatch's bounds: the whole patch inside the image.
+      const Eigen::Vector2d uv = predicted + Eigen::Vector2d(dx, dy);
+      if (uv.x() - h < 0 || uv.y() - h < 0 || uv.x() + h > image.cols - 1 ||
+          uv.y() + h > image.rows - 1)
+        continue;
+      const std::optional<double> v = score(region, r, dx, dy);
+      if (!v) continue;
+      out.scores.at<double>(dy + r, dx + r) = *v;
+      if (*v > out.best) {
+        out.best = *v;
+        out.bx = dx;
+        out.by = dy;
+      }
+    }
+  }
+  return out;
+}
+
+// Bilinear sample of an 8-bit image; (x, y) at least one pixel inside.
+double Bilinear(const cv::Mat& image, double x, double y) {
+  const int x0 = static_cast<int>(std::floor(x));
+  const int y0 = static_cast<int>(std::floor(y));
+  const double ax = x - x0, ay = y - y0;
+  const uint8_t* r0 = image.ptr<uint8_t>(y0) + x0;
+  const uint8_t* r1 = image.ptr<uint8_t>(y0 + 1) + x0;
+  return (1.0 - ay) * ((1.0 - ax) * r0[0] + ax * r0[1]) + ay * ((1.0 - ax) * r1[0] + ax * r1[1]);
+}
+
+// Whether every pixel a bilinear sample at (x, y) reads, widened by
+// `margin` pixels (the sample's gradient), is on the mask; true without one.
+bool OnMask(const cv::Mat& mask, double x, double y, int margin = 0) {
+  if (mask.empty()) return true;
+  const int x0 = static_cast<int>(std::floor(x)) - margin;
+  const int y0 = static_cast<int>(std::floor(y)) - margin;
+  const int x1 = static_cast<int>(std::floor(x)) + 1 + margin;
+  const int y1 = static_cast<int>(std::floor(y)) + 1 + margin;
+  if (x0 < 0 || y0 < 0 || x1 >= mask.cols || y1 >= mask.rows) return false;
+  for (int yy = y0; yy <= y1; ++yy) {
+    const uint8_t* row = mask.ptr<uint8_t>(yy);
+    for (int xx = x0; xx <= x1; ++xx) {
+      if (row[xx] == 0) return false;
+    }
+  }
+  return true;
+}
+
+// Gauss–Newton on (shift, gain, offset) minimising
+// Σ (gain · I(uv + x) + offset − T(x))² over the patch pixels `used`
+// (row-major indices); nullopt when it does not converge.
+std::optional<Eigen::Vector2d> RefineShift(const cv::Mat& image,
+                                           const cv::Mat& patch,
+                                           const std::vector<int>& used,
+                                           Eigen::Vector2d uv,
+                                           int iterations) {
+  const int h = patch.rows / 2;
+  const int side = patch.rows;
+  double gain = 1.0, offset = 0.0;
+  {
+    // Start from the gain and offset that match the means and deviations.
+    double st = 0, stt = 0, si = 0, sii = 0;
+    for (int i : used) {
+      const double t = patch.at<float>(i / side, i % side);
+      const double v = Bilinear(image, uv.x() + i % side - h, uv.y() + i / side - h);
+      st += t;
+      stt += t * t;
+      si += v;
+      sii += v * v;
+    }
+    const double n = static_cast<double>(used.size());
+    const double vt = stt / n - (st / n) * (st / n), vi = sii / n - (si / n) * (si / n);
+    if (vt <= 1e-6 || vi <= 1e-6) return std::nullopt;
+    gain = std::sqrt(vt / vi);
+    offset = st / n - gain * si / n;
+  }
+  for (int it = 0; it < iterations; ++it) {
+    Eigen::Matrix4d hess = Eigen::Matrix4d::Zero();
+    Eigen::Vector4d grad = Eigen::Vector4d::Zero();
+    for (int i : used) {
+      const double x = uv.x() + i % side - h, y = uv.y() + i / side - h;
+      if (x < 1.0 || y < 1.0 || x > image.cols - 3 || y > image.rows - 3) return std::nullopt;
+      const double v = Bilinear(image, x, y);
+      const double gx = 0.5 * (Bilinear(image, x + 1, y) - Bilinear(image, x - 1, y));
+      const double gy = 0.5 * (Bilinear(image, x, y + 1) - Bilinear(image, x, y - 1));
+      const Eigen::Vector4d j(gain * gx, gain * gy, v, 1.0);
+      const double r = gain * v + offset - patch.at<float>(i / side, i % side);
+      hess += j * j.transpose();
+      grad += j * r;
+    }
+    const Eigen::Vector4d step = hess.ldlt().solve(-grad);
+    if (!step.allFinite()) return std::nullopt;
+    uv += step.head<2>();
+    gain += step(2);
+    offset += step(3);
+    if (step.head<2>().norm() < 1e-3) break;
+  }
+  return uv;
+}
+
+}  // namespace
+
 std::optional<Eigen::Vector2d> PatchSearch(const cv::Mat& image,
                                            const cv::Mat& patch,
                                            const Eigen::Vector2d& predicted,
@@ -151,8 +296,6 @@ std::optional<Eigen::Vector2d> PatchSearch(const cv::Mat& image,
   CHECK_EQ(patch.rows, patch.cols);
   const int h = patch.rows / 2;
   const int side = 2 * h + 1;
-  const int r = static_cast<int>(std::ceil(options.patch_search_radius_px));
-  const int w = 2 * r + 1;
   // The template zero-mean once, as Ncc does for every offset.
   const int n = side * side;
   std::vector<double> centred(static_cast<size_t>(n));
@@ -172,55 +315,78 @@ std::optional<Eigen::Vector2d> PatchSearch(const cv::Mat& image,
     }
   }
   const double sigma_a = std::sqrt(var_a / n);
-  // One bilinear region covering every offset: the window of offset (dx, dy)
-  // is its sub-block at (r + dx, r + dy), the patch ExtractPatch would take
-  // at predicted + (dx, dy) (up to the float rounding of the centre).
-  cv::Mat region;
-  cv::getRectSubPix(
-      image,
-      cv::Size(side + 2 * r, side + 2 * r),
-      cv::Point2f(static_cast<float>(predicted.x()), static_cast<float>(predicted.y())),
-      region,
-      CV_32F);
-  cv::Mat scores(w, w, CV_64F, cv::Scalar(-2.0));
-  double best = -2.0;
-  int bx = 0, by = 0;
-  for (int dy = -r; dy <= r; ++dy) {
-    for (int dx = -r; dx <= r; ++dx) {
-      if (dx * dx + dy * dy >
-          options.patch_search_radius_px * options.patch_search_radius_px + 1e-9)
-        continue;
-      // ExtractPatch's bounds: the whole patch inside the image.
-      const Eigen::Vector2d uv = predicted + Eigen::Vector2d(dx, dy);
-      if (uv.x() - h < 0 || uv.y() - h < 0 || uv.x() + h > image.cols - 1 ||
-          uv.y() + h > image.rows - 1)
-        continue;
-      // Zero-mean NCC with population deviations (Ncc).
-      double sum_b = 0.0, sum_bb = 0.0, sum_ab = 0.0;
-      for (int y = 0; y < side; ++y) {
-        const float* row = region.ptr<float>(r + dy + y) + (r + dx);
-        const double* a = centred.data() + y * side;
-        for (int x = 0; x < side; ++x) {
-          const double b = row[x];
-          sum_b += b;
-          sum_bb += b * b;
-          sum_ab += a[x] * b;
+  const OffsetScores found =
+      ScoreOffsets(image, h, predicted, options, [&](const cv::Mat& region, int r, int dx, int dy) {
+        // Zero-mean NCC with population deviations (Ncc).
+        double sum_b = 0.0, sum_bb = 0.0, sum_ab = 0.0;
+        for (int y = 0; y < side; ++y) {
+          const float* row = region.ptr<float>(r + dy + y) + (r + dx);
+          const double* a = centred.data() + y * side;
+          for (int x = 0; x < side; ++x) {
+            const double b = row[x];
+            sum_b += b;
+            sum_bb += b * b;
+            sum_ab += a[x] * b;
+          }
         }
-      }
-      const double mean_b = sum_b / n;
-      const double sigma_b = std::sqrt(std::max(0.0, sum_bb / n - mean_b * mean_b));
-      const double score =
-          sigma_a < 1e-6 || sigma_b < 1e-6 ? 0.0 : sum_ab / (n * sigma_a * sigma_b);
-      scores.at<double>(dy + r, dx + r) = score;
-      if (score > best) {
-        best = score;
-        bx = dx;
-        by = dy;
-      }
+        const double mean_b = sum_b / n;
+        const double sigma_b = std::sqrt(std::max(0.0, sum_bb / n - mean_b * mean_b));
+        return std::optional<double>(
+            sigma_a < 1e-6 || sigma_b < 1e-6 ? 0.0 : sum_ab / (n * sigma_a * sigma_b));
+      });
+  return found.Vertex(predicted, options.min_ncc);
+}
+
+std::optional<Eigen::Vector2d> MaskedPatchSearch(const cv::Mat& image,
+                                                 const cv::Mat& patch,
+                                                 const cv::Mat& mask,
+                                                 const Eigen::Vector2d& predicted,
+                                                 const ProjectionSearchOptions& options) {
+  if (patch.empty()) return std::nullopt;
+  CHECK_EQ(image.type(), CV_8UC1);
+  CHECK_EQ(patch.type(), CV_32F);
+  CHECK_EQ(patch.rows, patch.cols);
+  CHECK(mask.empty() || (mask.type() == CV_8UC1 && mask.size() == image.size()));
+  const int h = patch.rows / 2;
+  const int side = 2 * h + 1;
+  const double min_pixels = std::max(4.0, options.min_masked_patch_share * side * side);
+  const OffsetScores found =
+      ScoreOffsets(image, h, predicted, options, [&](const cv::Mat& region, int r, int dx, int dy) {
+        const Eigen::Vector2d uv = predicted + Eigen::Vector2d(dx, dy);
+        double n = 0, sa = 0, saa = 0, sb = 0, sbb = 0, sab = 0;
+        for (int y = 0; y < side; ++y) {
+          const float* ref = patch.ptr<float>(y);
+          const float* row = region.ptr<float>(r + dy + y) + (r + dx);
+          for (int x = 0; x < side; ++x) {
+            const double a = ref[x];
+            if (std::isnan(a) || !OnMask(mask, uv.x() + x - h, uv.y() + y - h)) continue;
+            const double b = row[x];
+            n += 1;
+            sa += a;
+            saa += a * a;
+            sb += b;
+            sbb += b * b;
+            sab += a * b;
+          }
+        }
+        if (n < min_pixels) return std::optional<double>();
+        const double va = saa - sa * sa / n, vb = sbb - sb * sb / n;
+        return std::optional<double>(
+            va < 1e-6 || vb < 1e-6 ? 0.0 : (sab - sa * sb / n) / std::sqrt(va * vb));
+      });
+  const std::optional<Eigen::Vector2d> vertex = found.Vertex(predicted, options.min_ncc);
+  if (!vertex || options.patch_gauss_newton_iterations <= 0) return vertex;
+  std::vector<int> used;
+  const Eigen::Vector2d peak = predicted + Eigen::Vector2d(found.bx, found.by);
+  for (int y = 0; y < side; ++y) {
+    for (int x = 0; x < side; ++x) {
+      if (!std::isnan(patch.at<float>(y, x)) && OnMask(mask, peak.x() + x - h, peak.y() + y - h, 1))
+        used.push_back(y * side + x);
     }
   }
-  if (best < options.min_ncc) return std::nullopt;
-  return predicted + (Eigen::Vector2d(bx, by) + ParabolaPeakOffset(scores, bx + r, by + r));
+  const auto refined =
+      RefineShift(image, patch, used, *vertex, options.patch_gauss_newton_iterations);
+  return refined && (*refined - *vertex).norm() <= 1.0 ? *refined : vertex;
 }
 
 }  // namespace twist::objects

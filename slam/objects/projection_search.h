@@ -35,6 +35,12 @@ struct ProjectionSearchOptions {
   int patch_half_size = 4;  // (2h+1)² patch for the NCC check
   double min_ncc = 0.85;
   double patch_search_radius_px = 4.0;
+  // Masked patches (MaskedPatchSearch): the least share of the patch's
+  // pixels that must be on the object in both views for an offset to count.
+  double min_masked_patch_share = 0.5;
+  // Gauss–Newton refinement of a masked match's sub-pixel position (with
+  // gain and offset) after the parabola; 0: the parabola only.
+  int patch_gauss_newton_iterations = 5;
 };
 
 // Hamming distance of two CV_8U descriptor rows.
@@ -71,5 +77,18 @@ std::optional<Eigen::Vector2d> PatchSearch(const cv::Mat& image,
                                            const cv::Mat& patch,
                                            const Eigen::Vector2d& predicted,
                                            const ProjectionSearchOptions& options);
+
+// PatchSearch restricted to the object: reference pixels that are NaN (off
+// the object when the patch was taken, TexturedPatch with a mask) and
+// current pixels outside `mask` (CV_8UC1, non-zero on the object; empty: no
+// restriction) take no part in an offset's correlation. The correlation's
+// peak is refined by Gauss–Newton on the shift, gain and offset over the
+// peak's pixels (options.patch_gauss_newton_iterations), kept when it stays
+// within 1 px of the parabola's vertex.
+std::optional<Eigen::Vector2d> MaskedPatchSearch(const cv::Mat& image,
+                                                 const cv::Mat& patch,
+                                                 const cv::Mat& mask,
+                                                 const Eigen::Vector2d& predicted,
+                                                 const ProjectionSearchOptions& options);
 
 }  // namespace twist::objects

@@ -227,6 +227,155 @@ TEST(ProjectionSearch, PatchSearchIsTheBruteForceSearch) {
   EXPECT_LT((*at_border - corner).norm(), 0.3);
 }
 
+// A textured object moved by `shift` over a textured background that stays
+// where it is, with the object's mask in both frames.
+struct RenderedOnTexture {
+  cv::Mat prev, next, prev_mask, next_mask;
+  cv::Rect object;
+};
+
+cv::Mat BlurredNoise(cv::Size size, uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_int_distribution<int> u(0, 255);
+  cv::Mat noise(size, CV_8UC1);
+  for (int y = 0; y < noise.rows; ++y) {
+    for (int x = 0; x < noise.cols; ++x) noise.at<uint8_t>(y, x) = static_cast<uint8_t>(u(rng));
+  }
+  cv::GaussianBlur(noise, noise, cv::Size(0, 0), 1.5);
+  cv::normalize(noise, noise, 20, 235, cv::NORM_MINMAX);
+  return noise;
+}
+
+RenderedOnTexture RenderObjectOnTexture(const cv::Point2d& shift, uint64_t seed) {
+  RenderedOnTexture r;
+  r.object = cv::Rect(100, 80, 160, 120);
+  const cv::Mat background = BlurredNoise(cv::Size(400, 300), seed + 1000);
+  cv::Mat layer(background.size(), CV_8UC1, cv::Scalar(0));
+  BlurredNoise(r.object.size(), seed).copyTo(layer(r.object));
+  r.prev_mask = cv::Mat(background.size(), CV_8UC1, cv::Scalar(0));
+  r.prev_mask(r.object).setTo(255);
+  r.prev = background.clone();
+  layer.copyTo(r.prev, r.prev_mask);
+  // The object's layer moved by the sub-pixel shift; its mask keeps the
+  // pixels whose whole interpolation support lies on the object.
+  const cv::Mat m = (cv::Mat_<double>(2, 3) << 1, 0, shift.x, 0, 1, shift.y);
+  cv::Mat moved;
+  cv::warpAffine(layer, moved, m, layer.size(), cv::INTER_LINEAR);
+  cv::Mat support;
+  cv::warpAffine(r.prev_mask, support, m, layer.size(), cv::INTER_LINEAR);
+  r.next_mask = support == 255;
+  r.next = background.clone();
+  moved.copyTo(r.next, r.next_mask);
+  return r;
+}
+
+// A reference patch that keeps only the pixels on the object (the others
+// NaN), as the object tracker takes it with masked patches.
+cv::Mat MaskedPatch(const cv::Mat& image, const cv::Mat& mask, const Eigen::Vector2d& uv, int h) {
+  cv::Mat patch = ExtractPatch(image, uv, h);
+  for (int y = 0; y < patch.rows; ++y) {
+    for (int x = 0; x < patch.cols; ++x) {
+      // Off the object when any pixel of its bilinear sample is.
+      const int mx = static_cast<int>(std::floor(uv.x() + x - h));
+      const int my = static_cast<int>(std::floor(uv.y() + y - h));
+      if (cv::countNonZero(mask(cv::Rect(mx, my, 2, 2))) < 4) patch.at<float>(y, x) = std::nanf("");
+    }
+  }
+  return patch;
+}
+
+// Points 1-3 px inside the object's outline: their whole patches straddle
+// the background, which stays where it was. The plain search is pulled
+// towards the background's (zero) motion; the masked one correlates only
+// the object's pixels and finds the object's shift.
+TEST(ProjectionSearch, MaskedPatchSearchIgnoresTheBackground) {
+  const cv::Point2d shift(1.6, -1.3);
+  const RenderedOnTexture r = RenderObjectOnTexture(shift, 21);
+  ProjectionSearchOptions options;
+  const int h = options.patch_half_size;
+  const Eigen::Vector2d truth(shift.x, shift.y);
+  double plain_error = 0.0, masked_error = 0.0;
+  int plain_found = 0, masked_found = 0, n = 0;
+  for (int k = 0; k < 40; ++k) {
+    const double inset = 1.3 + 0.05 * k;  // 1.3-3.3 px inside the outline
+    const double along = r.object.y + 20.0 + 2.0 * k;
+    for (const Eigen::Vector2d& p : {Eigen::Vector2d(r.object.x + inset, along),
+                                     Eigen::Vector2d(r.object.br().x - 1 - inset, along)}) {
+      ++n;
+      const Eigen::Vector2d predicted = p + truth + Eigen::Vector2d(0.4, 0.3);
+      const auto plain = PatchSearch(r.next, ExtractPatch(r.prev, p, h), predicted, options);
+      if (plain) {
+        ++plain_found;
+        plain_error += (*plain - p - truth).norm();
+      }
+      const auto masked = MaskedPatchSearch(
+          r.next, MaskedPatch(r.prev, r.prev_mask, p, h), r.next_mask, predicted, options);
+      if (masked) {
+        ++masked_found;
+        masked_error += (*masked - p - truth).norm();
+      }
+    }
+  }
+  ASSERT_GT(masked_found, n * 9 / 10);
+  masked_error /= masked_found;
+  plain_error = plain_found > 0 ? plain_error / plain_found : 99.0;
+  std::printf("border patches: plain %d/%d found, mean error %.3f px; masked %d/%d, %.3f px\n",
+              plain_found, n, plain_error, masked_found, n, masked_error);
+  EXPECT_LT(masked_error, 0.1);
+  EXPECT_GT(plain_error, 3.0 * masked_error);
+}
+
+// Inside the object, the Gauss–Newton refinement takes the parabola's pull
+// towards whole pixels out of the sub-pixel position.
+TEST(ProjectionSearch, MaskedPatchSearchRefinesTheParabolaVertex) {
+  ProjectionSearchOptions parabola;
+  parabola.patch_gauss_newton_iterations = 0;
+  const ProjectionSearchOptions refined;
+  ASSERT_GT(refined.patch_gauss_newton_iterations, 0);
+  const int h = refined.patch_half_size;
+  double error_parabola = 0.0, error_refined = 0.0;
+  int n = 0;
+  for (int s = 0; s < 10; ++s) {
+    const cv::Point2d shift(0.1 * s - 0.45, 0.35 - 0.07 * s);
+    const RenderedOnTexture r = RenderObjectOnTexture(shift, 30 + s);
+    for (const Eigen::Vector2d& p : InteriorGrid(r.object, 12, 17)) {
+      const cv::Mat patch = MaskedPatch(r.prev, r.prev_mask, p, h);
+      const Eigen::Vector2d truth = p + Eigen::Vector2d(shift.x, shift.y);
+      const auto a = MaskedPatchSearch(r.next, patch, r.next_mask, p, parabola);
+      const auto b = MaskedPatchSearch(r.next, patch, r.next_mask, p, refined);
+      ASSERT_TRUE(a.has_value() && b.has_value());
+      error_parabola += (*a - truth).norm();
+      error_refined += (*b - truth).norm();
+      ++n;
+    }
+  }
+  error_parabola /= n;
+  error_refined /= n;
+  std::printf("interior patches (%d): parabola %.3f px, Gauss-Newton %.3f px\n",
+              n, error_parabola, error_refined);
+  EXPECT_LT(error_refined, 0.03);
+  EXPECT_LT(error_refined, 0.5 * error_parabola);
+}
+
+// Nothing to correlate: an empty patch, a patch with no pixel on the
+// object, or a search where the object is not.
+TEST(ProjectionSearch, MaskedPatchSearchRefusesPatchesOffTheObject) {
+  const RenderedOnTexture r = RenderObjectOnTexture(cv::Point2d(1.0, 1.0), 40);
+  const ProjectionSearchOptions options;
+  const int h = options.patch_half_size;
+  const Eigen::Vector2d inside(170.0, 140.0);
+  EXPECT_FALSE(MaskedPatchSearch(r.next, cv::Mat(), r.next_mask, inside, options).has_value());
+  cv::Mat all_nan = ExtractPatch(r.prev, inside, h);
+  all_nan.setTo(std::nanf(""));
+  EXPECT_FALSE(MaskedPatchSearch(r.next, all_nan, r.next_mask, inside, options).has_value());
+  const cv::Mat patch = MaskedPatch(r.prev, r.prev_mask, inside, h);
+  const cv::Mat no_object(r.next.size(), CV_8UC1, cv::Scalar(0));
+  EXPECT_FALSE(MaskedPatchSearch(r.next, patch, no_object, inside, options).has_value());
+  // With the mask it is found; with no mask at all it is the whole patch.
+  EXPECT_TRUE(MaskedPatchSearch(r.next, patch, r.next_mask, inside, options).has_value());
+  EXPECT_TRUE(MaskedPatchSearch(r.next, patch, cv::Mat(), inside, options).has_value());
+}
+
 // Shared pyramids give exactly the result of the images themselves.
 TEST(FlowAssociation, SparseFlowOnSharedPyramidsIsTheSameAsOnImages) {
   const Rendered r = RenderMovingPatch(cv::Point2d(3.6, 1.9), 6);

@@ -1431,6 +1431,16 @@ TEST(ObjectTracker, RejectsMalformedInput) {
   }
   options.patch_refresh_max_offset_px = 1.0;
   EXPECT_TRUE(options.Validate().ok());
+  for (double bad : {0.0, 1.5, std::nan("")}) {
+    options.search.min_masked_patch_share = bad;
+    EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
+  }
+  options.search.min_masked_patch_share = 1.0;
+  EXPECT_TRUE(options.Validate().ok());
+  options.search.patch_gauss_newton_iterations = -1;
+  EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
+  options.search.patch_gauss_newton_iterations = 0;
+  EXPECT_TRUE(options.Validate().ok());
 }
 
 }  // namespace
