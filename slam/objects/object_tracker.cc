@@ -224,6 +224,11 @@ absl::Status ObjectTrackerOptions::Validate() const {
   if (!(stationary_max_leave_speed_mps >= 0.0)) {
     return absl::InvalidArgumentError("object tracker needs stationary_max_leave_speed_mps >= 0");
   }
+  if (!(stationary_max_leave_curvature_per_m >= 0.0) || !(stationary_leave_turn_slack_rad >= 0.0)) {
+    return absl::InvalidArgumentError(
+        "object tracker needs stationary_max_leave_curvature_per_m >= 0 and "
+        "stationary_leave_turn_slack_rad >= 0");
+  }
   if (!(stationary_min_leave_support >= 0.0 && stationary_min_leave_support <= 1.0)) {
     return absl::InvalidArgumentError(
         "object tracker needs stationary_min_leave_support in [0, 1]");
@@ -1071,6 +1076,13 @@ bool ObjectTracker::Track(const FrameContext& ctx,
     if (o->stationary && significant && speed >= options_.stationary_leave_speed_mps &&
         est->num_inliers < options_.stationary_min_leave_support * o->last_num_inliers) {
       return coast();  // a start seen by a few points only: an occlusion
+    }
+    if (o->stationary && significant && speed >= options_.stationary_leave_speed_mps &&
+        options_.stationary_max_leave_curvature_per_m > 0.0 &&
+        est->twist.tail<3>().norm() >
+            options_.stationary_max_leave_curvature_per_m * speed * ctx.dt +
+                options_.stationary_leave_turn_slack_rad) {
+      return coast();  // no car turns that sharply as it pulls away
     }
     if (o->stationary) {
       o->stationary = !(significant && speed >= options_.stationary_leave_speed_mps);

@@ -491,6 +491,18 @@ struct ObjectTrackerOptions {
   // inliers, on the occluder's edge, that "moved" the car sideways at
   // 1.7 m/s; it was then lost and tracked again as a new object. 0: off.
   double stationary_min_leave_support = 0.5;
+  // A stationary object's step that would start it may turn by at most
+  // stationary_max_leave_curvature_per_m × the distance it moves plus
+  // stationary_leave_turn_slack_rad; one that turns more is a failed
+  // measurement and coasts (held). No car turns 7° while it pulls away by
+  // 0.13 m (a radius of 1 m); the lead car of
+  // `stationary_then_accelerating` seed 4, 9 m ahead and seen from behind on
+  // 10-20 inliers, was started by a step that turned it by −4.4° (7.2°
+  // with masked_patches; docs/objects.md §45). The bound (a radius of 3.3 m) holds for the
+  // cars; a pedestrian turning on the spot as it starts stays held for the
+  // frame. 0: off.
+  double stationary_max_leave_curvature_per_m = 0.3;
+  double stationary_leave_turn_slack_rad = 0.01;
 
   absl::Status Validate() const;
 };

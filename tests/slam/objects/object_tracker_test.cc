@@ -610,6 +610,60 @@ TEST(ObjectTracker, AFailedMeasurementDoesNotStartAParkedCar) {
   }
 }
 
+// A parked car held stationary is measured for one frame 0.2 m ahead and
+// turned by 7° about its centre (a start of 2 m/s): no car turns that
+// sharply as it pulls away (stationary_max_leave_curvature_per_m), so the
+// step coasts and the car stays held. Without the bound it starts.
+TEST(ObjectTracker, AStartThatTurnsLikeNoCarDoesNotStartAParkedCar) {
+  for (double max_curvature : {0.3, 0.0}) {
+    CarSequence parked(0.3, 29);
+    parked.set_step(Vector6d::Zero());
+    ObjectTrackerOptions options;
+    options.stationary_max_leave_curvature_per_m = max_curvature;
+    ObjectTracker tracker(parked.camera(), options);
+    const Eigen::Vector3d centre = parked.world_from_object().translation();
+    const Eigen::Vector3d up = parked.world_from_object().rotation().col(2);
+    const Eigen::Vector3d ahead = parked.world_from_object().rotation().col(1);
+    const SE3d turned_in_place =
+        SE3d(geometry::SO3d(), centre + 0.2 * ahead) *
+        SE3d(geometry::SO3d::Exp(up * (7.0 * M_PI / 180.0)), Eigen::Vector3d::Zero()) *
+        SE3d(geometry::SO3d(), -centre);
+    int rejected = 0;
+    bool stationary_at_glitch = false;
+    double speed_at_glitch = -1.0;
+    for (int i = 0; i < 8; ++i) {
+      parked.set_measurement_glitch(i == 6 ? turned_in_place : SE3d());
+      const auto results = tracker.Process(parked.Next(4, true));
+      ASSERT_TRUE(results.ok());
+      ASSERT_GE(results->size(), 1u);
+      const ObjectResult& r = (*results)[0];
+      rejected += tracker.last_stats().rejected;
+      if (i == 5) {
+        ASSERT_TRUE(r.stationary);
+      }
+      if (i == 6) {
+        stationary_at_glitch = r.stationary;
+        speed_at_glitch = r.speed_mps;
+      }
+    }
+    std::printf(
+        "[parked car turned 7 deg, bound %.1f /m] stationary %d, speed %.2f m/s, "
+        "%d rejected\n",
+        max_curvature,
+        static_cast<int>(stationary_at_glitch),
+        speed_at_glitch,
+        rejected);
+    if (max_curvature > 0.0) {
+      EXPECT_TRUE(stationary_at_glitch);
+      EXPECT_EQ(speed_at_glitch, 0.0);
+      EXPECT_EQ(rejected, 1);
+    } else {
+      EXPECT_FALSE(stationary_at_glitch);
+      EXPECT_GT(speed_at_glitch, 1.2);
+    }
+  }
+}
+
 // A car held stationary that starts at 2 or 4 m/s² leaves standstill within a
 // few frames, is tracked in every frame, and is followed within 0.8 m/s once
 // it has picked up (at 4 m/s² the filter lags by 0.6 m/s when the car stops
@@ -1440,6 +1494,15 @@ TEST(ObjectTracker, RejectsMalformedInput) {
   options.search.patch_gauss_newton_iterations = -1;
   EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
   options.search.patch_gauss_newton_iterations = 0;
+  EXPECT_TRUE(options.Validate().ok());
+  for (double bad : {-0.1, std::nan("")}) {
+    options.stationary_max_leave_curvature_per_m = bad;
+    EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
+    options.stationary_max_leave_curvature_per_m = 0.3;
+    options.stationary_leave_turn_slack_rad = bad;
+    EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
+    options.stationary_leave_turn_slack_rad = 0.01;
+  }
   EXPECT_TRUE(options.Validate().ok());
 }
 
