@@ -96,8 +96,8 @@ bool InsideDetection(const ObjectDetectionInput& det,
 
 // Reference patch for the NCC search; none on untextured areas, where the
 // correlation is meaningless. With a mask, the pixels off it are NaN (left
-// out of the masked search), and there is no patch when less than
-// `min_share` of it is on the mask.
+// out of the masked search), unless less than `min_share` of the patch is
+// on the mask: that patch stays whole.
 cv::Mat TexturedPatch(const cv::Mat& image,
                       const Eigen::Vector2d& uv,
                       int half_size,
@@ -119,14 +119,22 @@ cv::Mat TexturedPatch(const cv::Mat& image,
           valid.at<uint8_t>(y, x) = 1;
       }
     }
+    // Mostly off the object: the plain patch (and the plain search).
     if (cv::countNonZero(valid) < std::max(4.0, min_share * static_cast<double>(patch.total())))
-      return cv::Mat();
+      valid = cv::Mat();
   }
   cv::Scalar mean, stddev;
   cv::meanStdDev(patch, mean, stddev, valid);
   if (stddev[0] < 2.0) return cv::Mat();
   if (!valid.empty()) patch.setTo(std::numeric_limits<float>::quiet_NaN(), valid == 0);
   return patch;
+}
+
+// Whether a reference patch was taken with pixels off the object's mask
+// (NaN; TexturedPatch).
+bool HasMaskedPixels(const cv::Mat& patch) {
+  return std::any_of(
+      patch.begin<float>(), patch.end<float>(), [](float v) { return std::isnan(v); });
 }
 
 // New points must sit well inside the mask: keypoints on the boundary
@@ -969,10 +977,10 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       if (!camera_.ProjectChecked(camera_from_object * pts[k], &uv, nullptr, 0.1) ||
           !camera_.InImage(uv, 8))
         continue;
-      const auto found =
-          options_.masked_patches
-              ? MaskedPatchSearch(f.left, o->points[k].patch, det.mask, uv, options_.search)
-              : PatchSearch(f.left, o->points[k].patch, uv, options_.search);
+      const cv::Mat& patch = o->points[k].patch;
+      const auto found = options_.masked_patches && HasMaskedPixels(patch)
+                             ? MaskedPatchSearch(f.left, patch, det.mask, uv, options_.search)
+                             : PatchSearch(f.left, patch, uv, options_.search);
       if (!found || !InsideDetection(det, *found, 2.0)) continue;
       double level_scale = 1.0;
       const double u_right = stereo_at(*found, k, &level_scale);

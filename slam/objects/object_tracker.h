@@ -193,12 +193,15 @@ struct ObjectTrackerOptions {
   double patch_refresh_view_change_deg = 0.0;
   double patch_refresh_max_offset_px = 1.0;
   // Reference patches keep only the pixels on the object's mask (the others
-  // NaN; none when less than search.min_masked_patch_share of the patch is
-  // on it), and the patch search correlates only the pixels on the object in
-  // both views (MaskedPatchSearch), refined by Gauss–Newton. Off: the
-  // moving cars' ATE improves (`follow_braking` 0.104 → 0.087 m), but their
-  // rotation does not, and cars starting from rest go wrong
-  // (`stationary_then_accelerating` 0.096 → 0.169 m; docs/objects.md §44).
+  // NaN), and the patch search correlates only the pixels on the object in
+  // both views (MaskedPatchSearch). A patch with less than
+  // search.min_masked_patch_share of its pixels on the mask stays whole and
+  // is searched as without the option. Off: the moving cars' ATE improves
+  // (24 runs 0.096 → 0.088 m; `follow_braking` 0.104 → 0.086), but their
+  // rotation does not (RPE_R 0.151 → 0.165 °/m), cars starting from rest
+  // are followed worse (`stationary_then_accelerating` 0.093 → 0.108 m),
+  // and a turning car of `turning_traffic` seed 3 went 0.4 m aside
+  // (docs/objects.md §44).
   bool masked_patches = false;
   bool constrained = true;  // false: every object is a free 6-DoF body
   // A planar object is created with its origin on its parent plane, and its

@@ -39,8 +39,10 @@ struct ProjectionSearchOptions {
   // pixels that must be on the object in both views for an offset to count.
   double min_masked_patch_share = 0.5;
   // Gauss–Newton refinement of a masked match's sub-pixel position (with
-  // gain and offset) after the parabola; 0: the parabola only.
-  int patch_gauss_newton_iterations = 5;
+  // gain and offset) after the parabola; 0: the parabola only (default: on
+  // the rendered scenes' objects the refinement turned them worse,
+  // docs/objects.md §44).
+  int patch_gauss_newton_iterations = 0;
 };
 
 // Hamming distance of two CV_8U descriptor rows.

@@ -286,16 +286,19 @@ cv::Mat MaskedPatch(const cv::Mat& image, const cv::Mat& mask, const Eigen::Vect
 
 // Points 1-3 px inside the object's outline: their whole patches straddle
 // the background, which stays where it was. The plain search is pulled
-// towards the background's (zero) motion; the masked one correlates only
-// the object's pixels and finds the object's shift.
+// towards the background's (zero) motion, and misses some; the masked one
+// correlates only the object's pixels and finds the object's shift, to the
+// parabola's sub-pixel precision, or closer with Gauss–Newton.
 TEST(ProjectionSearch, MaskedPatchSearchIgnoresTheBackground) {
   const cv::Point2d shift(1.6, -1.3);
   const RenderedOnTexture r = RenderObjectOnTexture(shift, 21);
-  ProjectionSearchOptions options;
+  const ProjectionSearchOptions options;
+  ProjectionSearchOptions refined;
+  refined.patch_gauss_newton_iterations = 5;
   const int h = options.patch_half_size;
   const Eigen::Vector2d truth(shift.x, shift.y);
-  double plain_error = 0.0, masked_error = 0.0;
-  int plain_found = 0, masked_found = 0, n = 0;
+  double plain_error = 0.0, masked_error = 0.0, refined_error = 0.0;
+  int plain_found = 0, masked_found = 0, refined_found = 0, n = 0;
   for (int k = 0; k < 40; ++k) {
     const double inset = 1.3 + 0.05 * k;  // 1.3-3.3 px inside the outline
     const double along = r.object.y + 20.0 + 2.0 * k;
@@ -308,30 +311,46 @@ TEST(ProjectionSearch, MaskedPatchSearchIgnoresTheBackground) {
         ++plain_found;
         plain_error += (*plain - p - truth).norm();
       }
-      const auto masked = MaskedPatchSearch(
-          r.next, MaskedPatch(r.prev, r.prev_mask, p, h), r.next_mask, predicted, options);
+      const cv::Mat patch = MaskedPatch(r.prev, r.prev_mask, p, h);
+      const auto masked = MaskedPatchSearch(r.next, patch, r.next_mask, predicted, options);
       if (masked) {
         ++masked_found;
         masked_error += (*masked - p - truth).norm();
       }
+      const auto with_gn = MaskedPatchSearch(r.next, patch, r.next_mask, predicted, refined);
+      if (with_gn) {
+        ++refined_found;
+        refined_error += (*with_gn - p - truth).norm();
+      }
     }
   }
   ASSERT_GT(masked_found, n * 9 / 10);
+  ASSERT_EQ(refined_found, masked_found);
   masked_error /= masked_found;
+  refined_error /= refined_found;
   plain_error = plain_found > 0 ? plain_error / plain_found : 99.0;
-  std::printf("border patches: plain %d/%d found, mean error %.3f px; masked %d/%d, %.3f px\n",
-              plain_found, n, plain_error, masked_found, n, masked_error);
-  EXPECT_LT(masked_error, 0.1);
-  EXPECT_GT(plain_error, 3.0 * masked_error);
+  std::printf(
+      "border patches: plain %d/%d found, mean error %.3f px; masked %d/%d, %.3f px "
+      "(Gauss-Newton %.3f px)\n",
+      plain_found,
+      n,
+      plain_error,
+      masked_found,
+      n,
+      masked_error,
+      refined_error);
+  EXPECT_LT(plain_found, masked_found);
+  EXPECT_LT(masked_error, 0.6 * plain_error);
+  EXPECT_LT(refined_error, 0.1);
 }
 
 // Inside the object, the Gauss–Newton refinement takes the parabola's pull
 // towards whole pixels out of the sub-pixel position.
 TEST(ProjectionSearch, MaskedPatchSearchRefinesTheParabolaVertex) {
-  ProjectionSearchOptions parabola;
-  parabola.patch_gauss_newton_iterations = 0;
-  const ProjectionSearchOptions refined;
-  ASSERT_GT(refined.patch_gauss_newton_iterations, 0);
+  const ProjectionSearchOptions parabola;  // the default
+  ASSERT_EQ(parabola.patch_gauss_newton_iterations, 0);
+  ProjectionSearchOptions refined;
+  refined.patch_gauss_newton_iterations = 5;
   const int h = refined.patch_half_size;
   double error_parabola = 0.0, error_refined = 0.0;
   int n = 0;
