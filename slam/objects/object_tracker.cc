@@ -260,9 +260,11 @@ absl::Status ObjectTrackerOptions::Validate() const {
     return absl::InvalidArgumentError(
         "object tracker needs tracked_stereo_search_fraction in [0, 1]");
   }
-  if (!(manoeuvre_angular_acceleration_sigma_radps2 >= 0.0)) {
+  if (!(manoeuvre_angular_acceleration_sigma_radps2 >= 0.0) ||
+      !(manoeuvre_max_reversal_turn_radps >= 0.0)) {
     return absl::InvalidArgumentError(
-        "object tracker needs manoeuvre_angular_acceleration_sigma_radps2 >= 0");
+        "object tracker needs manoeuvre_angular_acceleration_sigma_radps2 >= 0 and "
+        "manoeuvre_max_reversal_turn_radps >= 0");
   }
   if (std::isnan(turn_rate_sigma_radps)) {
     return absl::InvalidArgumentError("object tracker turn_rate_sigma_radps must be a number");
@@ -823,6 +825,19 @@ absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> ObjectTracker::Spars
   return TrackSparseFlow(ctx.prev_pyramid, ctx.pyramid, prev_uv, options_.flow, &predicted_uv);
 }
 
+bool ObjectTracker::ReversesTurn(const TrackedObject& o,
+                                 const Vector6d& predicted,
+                                 const Vector6d& measured,
+                                 double dt) const {
+  const double bound = options_.manoeuvre_max_reversal_turn_radps * dt;
+  if (!(bound > 0.0)) return false;
+  const Eigen::Vector3d normal = o.joint.world_from_joint().rotation().col(2);
+  const double turn_predicted = predicted.tail<3>().dot(normal);
+  const double turn_measured = measured.tail<3>().dot(normal);
+  return turn_predicted * turn_measured < 0.0 && std::abs(turn_predicted) > bound &&
+         std::abs(turn_measured) > bound;
+}
+
 bool ObjectTracker::Track(const FrameContext& ctx,
                           const ObjectDetectionInput& det,
                           TrackedObject* o,
@@ -1043,13 +1058,15 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   if (est->num_inliers < options_.min_step_inliers) return coast();
   if (filtered) {
     if (o->twist_covariance_valid) predicted_covariance = PredictedCovariance(ctx, *o);
+    const Vector6d measured = est->twist;
     if (!FilterStep(*o, initial, predicted_covariance, &*est)) {
       // A turn's onset (manoeuvre_angular_acceleration_sigma_radps2). A step
       // that fails this gate too coasts with the wider covariance, so that
       // the next step is gated as a possible turn as well.
       const double manoeuvre = options_.manoeuvre_angular_acceleration_sigma_radps2;
       bool passed = false;
-      if (manoeuvre > 0.0 && o->twist_covariance_valid) {
+      if (manoeuvre > 0.0 && o->twist_covariance_valid &&
+          !ReversesTurn(*o, initial, measured, ctx.dt)) {
         predicted_covariance += ProcessNoise(*o, ctx.dt, 0.0, manoeuvre);
         passed = FilterStep(*o, initial, predicted_covariance, &*est);
         if (passed) ++stats_.manoeuvres;

@@ -194,15 +194,14 @@ struct ObjectTrackerOptions {
   double patch_refresh_max_offset_px = 1.0;
   // Reference patches keep only the pixels on the object's mask (the others
   // NaN), and the patch search correlates only the pixels on the object in
-  // both views (MaskedPatchSearch). A patch with less than
-  // search.min_masked_patch_share of its pixels on the mask stays whole and
-  // is searched as without the option. Off: the moving cars' ATE improves
-  // (24 runs 0.096 → 0.088 m; `follow_braking` 0.104 → 0.086), but their
-  // rotation does not (RPE_R 0.151 → 0.165 °/m), cars starting from rest
-  // are followed worse (`stationary_then_accelerating` 0.093 → 0.108 m),
-  // and a turning car of `turning_traffic` seed 3 went 0.4 m aside
-  // (docs/objects.md §44).
-  bool masked_patches = false;
+  // both views (MaskedPatchSearch): a patch near the car's outline otherwise
+  // follows the still background and the sliding silhouette. A patch with
+  // less than search.min_masked_patch_share of its pixels on the mask stays
+  // whole and is searched plainly. 24 runs: ATE 0.096 → 0.088 m
+  // (`follow_braking` 0.104 → 0.086), RPE_R 0.151 → 0.165 °/m,
+  // `stationary_then_accelerating` 0.093 → 0.108 m (docs/objects.md §44,
+  // §46). Off: the plain patches.
+  bool masked_patches = true;
   bool constrained = true;  // false: every object is a free 6-DoF body
   // A planar object is created with its origin on its parent plane, and its
   // steps keep it there. When the parent plane is refitted, a moving object
@@ -428,6 +427,14 @@ struct ObjectTrackerOptions {
   // manoeuvre and is fused with that covariance when it passes. A step that
   // shifts the car sideways or along its way still coasts. 0: off.
   double manoeuvre_angular_acceleration_sigma_radps2 = 4.0;
+  // A step that reverses the turn, turning one way at more than this rate
+  // (rad/s, about the joint's normal) when the prediction turns the other
+  // way at more than it too, is not a manoeuvre: no car swings from a left
+  // turn into a right one within a frame. With masked_patches, a car of
+  // `turning_traffic` seed 3 turning at +4.9° per frame was measured at
+  // −2.1°, passed as a manoeuvre, and kept 0.4 m aside (docs/objects.md
+  // §44). 0: off.
+  double manoeuvre_max_reversal_turn_radps = 0.175;
   // The twist of an object with its points' own stereo errors (errors in
   // variables, TwistObservation::point_sigma_in_object; docs/objects.md §27):
   // each point's depth along its creation ray is estimated with the twist.
@@ -501,9 +508,9 @@ struct ObjectTrackerOptions {
   // 0.13 m (a radius of 1 m); the lead car of
   // `stationary_then_accelerating` seed 4, 9 m ahead and seen from behind on
   // 10-20 inliers, was started by a step that turned it by −4.4° (7.2°
-  // with masked_patches; docs/objects.md §45). The bound (a radius of 3.3 m) holds for the
-  // cars; a pedestrian turning on the spot as it starts stays held for the
-  // frame. 0: off.
+  // with an early version of masked_patches; docs/objects.md §45). The
+  // bound (a radius of 3.3 m) holds for the cars; a pedestrian turning on
+  // the spot as it starts stays held for the frame. 0: off.
   double stationary_max_leave_curvature_per_m = 0.3;
   double stationary_leave_turn_slack_rad = 0.01;
 
@@ -639,6 +646,13 @@ class ObjectTracker {
   cv::Mat PointPatch(const FrameContext& ctx,
                      const ObjectDetectionInput& det,
                      const Eigen::Vector2d& uv) const;
+  // Whether the step `measured` turns the object (about its joint's normal)
+  // against the turn of the prediction `predicted`, both faster than
+  // manoeuvre_max_reversal_turn_radps over `dt` seconds.
+  bool ReversesTurn(const TrackedObject& o,
+                    const geometry::Vector6d& predicted,
+                    const geometry::Vector6d& measured,
+                    double dt) const;
   // Takes the point's reference patch again when the view of it has turned
   // (patch_refresh_view_change_deg > 0); the step's pose is
   // `camera_from_object` (the camera's centre `camera_in_object`), `found`

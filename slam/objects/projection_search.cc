@@ -350,16 +350,26 @@ std::optional<Eigen::Vector2d> MaskedPatchSearch(const cv::Mat& image,
   const int h = patch.rows / 2;
   const int side = 2 * h + 1;
   const double min_pixels = std::max(4.0, options.min_masked_patch_share * side * side);
+  // Which pixels of the search region (ScoreOffsets) lie on the object, once
+  // for every offset's window.
+  const int rr = static_cast<int>(std::ceil(options.patch_search_radius_px));
+  cv::Mat on_object(side + 2 * rr, side + 2 * rr, CV_8UC1);
+  for (int i = 0; i < on_object.rows; ++i) {
+    for (int j = 0; j < on_object.cols; ++j) {
+      on_object.at<uint8_t>(i, j) =
+          OnMask(mask, predicted.x() + (j - rr - h), predicted.y() + (i - rr - h)) ? 1 : 0;
+    }
+  }
   const OffsetScores found =
       ScoreOffsets(image, h, predicted, options, [&](const cv::Mat& region, int r, int dx, int dy) {
-        const Eigen::Vector2d uv = predicted + Eigen::Vector2d(dx, dy);
         double n = 0, sa = 0, saa = 0, sb = 0, sbb = 0, sab = 0;
         for (int y = 0; y < side; ++y) {
           const float* ref = patch.ptr<float>(y);
           const float* row = region.ptr<float>(r + dy + y) + (r + dx);
+          const uint8_t* on = on_object.ptr<uint8_t>(r + dy + y) + (r + dx);
           for (int x = 0; x < side; ++x) {
             const double a = ref[x];
-            if (std::isnan(a) || !OnMask(mask, uv.x() + x - h, uv.y() + y - h)) continue;
+            if (std::isnan(a) || !on[x]) continue;
             const double b = row[x];
             n += 1;
             sa += a;

@@ -664,6 +664,56 @@ TEST(ObjectTracker, AStartThatTurnsLikeNoCarDoesNotStartAParkedCar) {
   }
 }
 
+// A car turning at 0.2 rad/s (1.15° per frame) is measured for one frame
+// turned 2.3° the other way about its centre: a step that reverses the turn
+// (manoeuvre_max_reversal_turn_radps) is no manoeuvre, so it coasts and the
+// heading stays with the truth. Without the rule the manoeuvre gate passes
+// it and the reported heading takes the glitch.
+TEST(ObjectTracker, AStepThatReversesTheTurnIsNoManoeuvre) {
+  for (double max_reversal : {0.175, 0.0}) {
+    CarSequence seq(0.0, 31);
+    ObjectTrackerOptions options;
+    options.manoeuvre_max_reversal_turn_radps = max_reversal;
+    ObjectTracker tracker(seq.camera(), options);
+    const Eigen::Vector3d up = seq.world_from_object().rotation().col(2);
+    const SE3d gt0 = seq.world_from_object();
+    SE3d est0;
+    int rejected_at_glitch = -1;
+    double heading_error_at_glitch = -1.0;
+    for (int i = 0; i < 10; ++i) {
+      const Eigen::Vector3d centre = seq.world_from_object().translation();
+      seq.set_measurement_glitch(i == 8 ? SE3d(geometry::SO3d(), centre) *
+                                              SE3d(geometry::SO3d::Exp(up * (-2.3 * M_PI / 180.0)),
+                                                   Eigen::Vector3d::Zero()) *
+                                              SE3d(geometry::SO3d(), -centre)
+                                        : SE3d());
+      const auto results = tracker.Process(seq.Next(4, true));
+      ASSERT_TRUE(results.ok());
+      ASSERT_EQ(results->size(), 1u);
+      const ObjectResult& r = (*results)[0];
+      if (i == 0) est0 = r.world_from_object;
+      if (i == 8) {
+        rejected_at_glitch = tracker.last_stats().rejected;
+        heading_error_at_glitch = RotationErrorDeg(r.world_from_object * est0.Inverse(),
+                                                   seq.world_from_object() * gt0.Inverse());
+      }
+    }
+    std::printf(
+        "[turn reversed for a frame, rule %.3f rad/s] heading error %.2f deg, %d "
+        "rejected\n",
+        max_reversal,
+        heading_error_at_glitch,
+        rejected_at_glitch);
+    if (max_reversal > 0.0) {
+      EXPECT_EQ(rejected_at_glitch, 1);
+      EXPECT_LT(heading_error_at_glitch, 0.5);
+    } else {
+      EXPECT_EQ(rejected_at_glitch, 0);
+      EXPECT_GT(heading_error_at_glitch, 1.5);
+    }
+  }
+}
+
 // A car held stationary that starts at 2 or 4 m/s² leaves standstill within a
 // few frames, is tracked in every frame, and is followed within 0.8 m/s once
 // it has picked up (at 4 m/s² the filter lags by 0.6 m/s when the car stops
@@ -1502,6 +1552,9 @@ TEST(ObjectTracker, RejectsMalformedInput) {
     options.stationary_leave_turn_slack_rad = bad;
     EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
     options.stationary_leave_turn_slack_rad = 0.01;
+    options.manoeuvre_max_reversal_turn_radps = bad;
+    EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
+    options.manoeuvre_max_reversal_turn_radps = 0.175;
   }
   EXPECT_TRUE(options.Validate().ok());
 }

@@ -351,11 +351,11 @@ TEST(ObjectsOnRenderedScenes, RevoluteDoor) {
 }
 
 // Cars turning at 4° per frame, the objects' BA after every frame on the
-// last 10: with the reference patches taken again as the view of their
-// points turns by 5° (ObjectTrackerOptions::patch_refresh_view_change_deg,
-// off by default), the steps' rotation error is lower than with the patches
-// of the points' creation (docs/objects.md §43); so it is with the patches
-// restricted to the car's mask (masked_patches, off by default, §44).
+// last 10: with the plain reference patches taken again as the view of
+// their points turns by 5° (ObjectTrackerOptions::patch_refresh_view_change_deg,
+// off by default), the steps' rotation error is lower than with the plain
+// patches of the points' creation (docs/objects.md §43); so it is with the
+// patches restricted to the car's mask (masked_patches, the default, §44).
 TEST(ObjectsOnRenderedScenes, TurningCarsWithPatchesTakenAgain) {
   enum Patches { kCreation, kTakenAgain, kMasked };
   std::map<Patches, double> error_of, excess_of;
