@@ -94,47 +94,35 @@ bool InsideDetection(const ObjectDetectionInput& det,
          uv.y() <= det.box.y + det.box.height + margin;
 }
 
-// Reference patch for the NCC search; none on untextured areas, where the
-// correlation is meaningless. With a mask, the pixels off it are NaN (left
-// out of the masked search), unless less than `min_share` of the patch is
-// on the mask: that patch stays whole.
-cv::Mat TexturedPatch(const cv::Mat& image,
-                      const Eigen::Vector2d& uv,
-                      int half_size,
-                      const cv::Mat& mask = cv::Mat(),
-                      double min_share = 0.5) {
-  cv::Mat patch = ExtractPatch(image, uv, half_size);
-  if (patch.empty()) return patch;
-  cv::Mat valid;
-  if (!mask.empty()) {
-    valid = cv::Mat(patch.size(), CV_8UC1, cv::Scalar(0));
-    for (int y = 0; y < patch.rows; ++y) {
-      for (int x = 0; x < patch.cols; ++x) {
-        // On the object when every pixel of its bilinear sample is.
-        const int mx = static_cast<int>(std::floor(uv.x() + x - half_size));
-        const int my = static_cast<int>(std::floor(uv.y() + y - half_size));
-        if (mx >= 0 && my >= 0 && mx + 1 < mask.cols && my + 1 < mask.rows &&
-            mask.at<uint8_t>(my, mx) && mask.at<uint8_t>(my, mx + 1) &&
-            mask.at<uint8_t>(my + 1, mx) && mask.at<uint8_t>(my + 1, mx + 1))
-          valid.at<uint8_t>(y, x) = 1;
-      }
-    }
-    // Mostly off the object: the plain patch (and the plain search).
-    if (cv::countNonZero(valid) < std::max(4.0, min_share * static_cast<double>(patch.total())))
-      valid = cv::Mat();
-  }
-  cv::Scalar mean, stddev;
-  cv::meanStdDev(patch, mean, stddev, valid);
-  if (stddev[0] < 2.0) return cv::Mat();
-  if (!valid.empty()) patch.setTo(std::numeric_limits<float>::quiet_NaN(), valid == 0);
-  return patch;
-}
-
 // Whether a reference patch was taken with pixels off the object's mask
 // (NaN; TexturedPatch).
 bool HasMaskedPixels(const cv::Mat& patch) {
   return std::any_of(
       patch.begin<float>(), patch.end<float>(), [](float v) { return std::isnan(v); });
+}
+
+// Reference patch for the NCC search; none on untextured areas, where the
+// correlation is meaningless. With a mask, the pixels off it are NaN
+// (ExtractMaskedPatch), and the texture is that of the others.
+cv::Mat TexturedPatch(const cv::Mat& image,
+                      const Eigen::Vector2d& uv,
+                      int half_size,
+                      const cv::Mat& mask = cv::Mat(),
+                      double min_share = 0.5) {
+  cv::Mat patch = mask.empty() ? ExtractPatch(image, uv, half_size)
+                               : ExtractMaskedPatch(image, mask, uv, half_size, min_share);
+  if (patch.empty()) return patch;
+  cv::Mat on_object;  // empty: all of it
+  if (HasMaskedPixels(patch)) {
+    on_object = cv::Mat(patch.size(), CV_8UC1);
+    for (int y = 0; y < patch.rows; ++y) {
+      for (int x = 0; x < patch.cols; ++x)
+        on_object.at<uint8_t>(y, x) = std::isnan(patch.at<float>(y, x)) ? 0 : 1;
+    }
+  }
+  cv::Scalar mean, stddev;
+  cv::meanStdDev(patch, mean, stddev, on_object);
+  return stddev[0] >= 2.0 ? patch : cv::Mat();
 }
 
 // New points must sit well inside the mask: keypoints on the boundary
@@ -993,8 +981,14 @@ bool ObjectTracker::Track(const FrameContext& ctx,
           !camera_.InImage(uv, 8))
         continue;
       const cv::Mat& patch = o->points[k].patch;
-      const auto found = options_.masked_patches && HasMaskedPixels(patch)
-                             ? MaskedPatchSearch(f.left, patch, det.mask, uv, options_.search)
+      // (A masked patch is searched as one with the option off too: a
+      // state saved with it on.)
+      const auto found = HasMaskedPixels(patch)
+                             ? MaskedPatchSearch(f.left,
+                                                 patch,
+                                                 options_.masked_patches ? det.mask : cv::Mat(),
+                                                 uv,
+                                                 options_.search)
                              : PatchSearch(f.left, patch, uv, options_.search);
       if (!found || !InsideDetection(det, *found, 2.0)) continue;
       double level_scale = 1.0;

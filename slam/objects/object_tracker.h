@@ -433,7 +433,7 @@ struct ObjectTrackerOptions {
   // turn into a right one within a frame. With masked_patches, a car of
   // `turning_traffic` seed 3 turning at +4.9° per frame was measured at
   // −2.1°, passed as a manoeuvre, and kept 0.4 m aside (docs/objects.md
-  // §44). 0: off.
+  // §46). 0: off.
   double manoeuvre_max_reversal_turn_radps = 0.175;
   // The twist of an object with its points' own stereo errors (errors in
   // variables, TwistObservation::point_sigma_in_object; docs/objects.md §27):

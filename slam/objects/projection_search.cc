@@ -286,6 +286,27 @@ std::optional<Eigen::Vector2d> RefineShift(const cv::Mat& image,
 
 }  // namespace
 
+cv::Mat ExtractMaskedPatch(const cv::Mat& image,
+                           const cv::Mat& mask,
+                           const Eigen::Vector2d& uv,
+                           int half_size,
+                           double min_share) {
+  CHECK(mask.type() == CV_8UC1 && mask.size() == image.size());
+  cv::Mat patch = ExtractPatch(image, uv, half_size);
+  if (patch.empty()) return patch;
+  cv::Mat off(patch.size(), CV_8UC1, cv::Scalar(0));
+  for (int y = 0; y < patch.rows; ++y) {
+    for (int x = 0; x < patch.cols; ++x) {
+      if (!OnMask(mask, uv.x() + x - half_size, uv.y() + y - half_size)) off.at<uint8_t>(y, x) = 1;
+    }
+  }
+  const double on = static_cast<double>(patch.total()) - cv::countNonZero(off);
+  if (on >= std::max(4.0, min_share * static_cast<double>(patch.total()))) {
+    patch.setTo(std::numeric_limits<float>::quiet_NaN(), off);
+  }
+  return patch;
+}
+
 std::optional<Eigen::Vector2d> PatchSearch(const cv::Mat& image,
                                            const cv::Mat& patch,
                                            const Eigen::Vector2d& predicted,

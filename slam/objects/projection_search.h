@@ -64,6 +64,16 @@ std::vector<int> SearchByProjection(const geometry::StereoCamera& camera,
 // does not fit in the image. `image` is 8-bit gray.
 cv::Mat ExtractPatch(const cv::Mat& image, const Eigen::Vector2d& uv, int half_size);
 
+// ExtractPatch restricted to an object: the pixels whose bilinear sample
+// reads a pixel off `mask` (CV_8UC1, non-zero on the object) are NaN, for
+// MaskedPatchSearch. When fewer than max(4, min_share × the patch's pixels)
+// are on the mask, the patch stays whole (no NaN). Empty like ExtractPatch.
+cv::Mat ExtractMaskedPatch(const cv::Mat& image,
+                           const cv::Mat& mask,
+                           const Eigen::Vector2d& uv,
+                           int half_size,
+                           double min_share);
+
 // Zero-mean normalised cross-correlation of two same-size CV_32F patches.
 double Ncc(const cv::Mat& a, const cv::Mat& b);
 

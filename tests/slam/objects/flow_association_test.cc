@@ -270,18 +270,39 @@ RenderedOnTexture RenderObjectOnTexture(const cv::Point2d& shift, uint64_t seed)
 }
 
 // A reference patch that keeps only the pixels on the object (the others
-// NaN), as the object tracker takes it with masked patches.
+// NaN), however few, as the object tracker takes it with masked patches.
 cv::Mat MaskedPatch(const cv::Mat& image, const cv::Mat& mask, const Eigen::Vector2d& uv, int h) {
-  cv::Mat patch = ExtractPatch(image, uv, h);
+  return ExtractMaskedPatch(image, mask, uv, h, 0.0);
+}
+
+// A patch straddling the object's left edge keeps its pixels on the object
+// and marks the others NaN (also those whose bilinear sample reads one
+// background pixel); one mostly off the object stays whole.
+TEST(ProjectionSearch, ExtractMaskedPatchMarksThePixelsOffTheObject) {
+  const RenderedOnTexture r = RenderObjectOnTexture(cv::Point2d(0.0, 0.0), 41);
+  const int h = 4;
+  // Centre 2.5 px right of the edge (x = 100): the samples at x 98.5 and
+  // 99.5 read background pixels (98-99, 99-100), the others do not.
+  const Eigen::Vector2d uv(102.5, 140.0);
+  const cv::Mat patch = ExtractMaskedPatch(r.prev, r.prev_mask, uv, h, 0.5);
+  ASSERT_FALSE(patch.empty());
+  const cv::Mat plain = ExtractPatch(r.prev, uv, h);
   for (int y = 0; y < patch.rows; ++y) {
     for (int x = 0; x < patch.cols; ++x) {
-      // Off the object when any pixel of its bilinear sample is.
-      const int mx = static_cast<int>(std::floor(uv.x() + x - h));
-      const int my = static_cast<int>(std::floor(uv.y() + y - h));
-      if (cv::countNonZero(mask(cv::Rect(mx, my, 2, 2))) < 4) patch.at<float>(y, x) = std::nanf("");
+      const double sample_x = uv.x() + x - h;  // reads floor(sample_x) and the next pixel
+      if (std::floor(sample_x) < r.object.x) {
+        EXPECT_TRUE(std::isnan(patch.at<float>(y, x))) << x << "," << y;
+      } else {
+        EXPECT_EQ(patch.at<float>(y, x), plain.at<float>(y, x)) << x << "," << y;
+      }
     }
   }
-  return patch;
+  // 7 of 9 columns on the object: masked at a share of 0.5, whole at 0.8.
+  const cv::Mat whole = ExtractMaskedPatch(r.prev, r.prev_mask, uv, h, 0.8);
+  for (int y = 0; y < whole.rows; ++y) {
+    for (int x = 0; x < whole.cols; ++x) EXPECT_EQ(whole.at<float>(y, x), plain.at<float>(y, x));
+  }
+  EXPECT_TRUE(ExtractMaskedPatch(r.prev, r.prev_mask, Eigen::Vector2d(2.0, 2.0), h, 0.5).empty());
 }
 
 // Points 1-3 px inside the object's outline: their whole patches straddle
