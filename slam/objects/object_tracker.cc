@@ -94,13 +94,6 @@ bool InsideDetection(const ObjectDetectionInput& det,
          uv.y() <= det.box.y + det.box.height + margin;
 }
 
-// Whether a reference patch was taken with pixels off the object's mask
-// (NaN; TexturedPatch).
-bool HasMaskedPixels(const cv::Mat& patch) {
-  return std::any_of(
-      patch.begin<float>(), patch.end<float>(), [](float v) { return std::isnan(v); });
-}
-
 // Reference patch for the NCC search; none on untextured areas, where the
 // correlation is meaningless. With a mask, the pixels off it are NaN
 // (ExtractMaskedPatch), and the texture is that of the others.
@@ -112,17 +105,22 @@ cv::Mat TexturedPatch(const cv::Mat& image,
   cv::Mat patch = mask.empty() ? ExtractPatch(image, uv, half_size)
                                : ExtractMaskedPatch(image, mask, uv, half_size, min_share);
   if (patch.empty()) return patch;
-  cv::Mat on_object;  // empty: all of it
-  if (HasMaskedPixels(patch)) {
-    on_object = cv::Mat(patch.size(), CV_8UC1);
-    for (int y = 0; y < patch.rows; ++y) {
-      for (int x = 0; x < patch.cols; ++x)
-        on_object.at<uint8_t>(y, x) = std::isnan(patch.at<float>(y, x)) ? 0 : 1;
-    }
+  double n = 0.0, sum = 0.0, sum_sq = 0.0;
+  for (auto it = patch.begin<float>(); it != patch.end<float>(); ++it) {
+    if (std::isnan(*it)) continue;
+    n += 1.0;
+    sum += *it;
+    sum_sq += static_cast<double>(*it) * *it;
   }
-  cv::Scalar mean, stddev;
-  cv::meanStdDev(patch, mean, stddev, on_object);
-  return stddev[0] >= 2.0 ? patch : cv::Mat();
+  const double mean = sum / n;
+  return std::sqrt(std::max(0.0, sum_sq / n - mean * mean)) >= 2.0 ? patch : cv::Mat();
+}
+
+// Whether a reference patch was taken with pixels off the object's mask
+// (NaN; TexturedPatch).
+bool HasMaskedPixels(const cv::Mat& patch) {
+  return std::any_of(
+      patch.begin<float>(), patch.end<float>(), [](float v) { return std::isnan(v); });
 }
 
 // New points must sit well inside the mask: keypoints on the boundary
@@ -1092,19 +1090,20 @@ bool ObjectTracker::Track(const FrameContext& ctx,
         speed > options_.stationary_max_leave_speed_mps) {
       return coast();  // no car starts that fast: a failed measurement
     }
-    if (o->stationary && significant && speed >= options_.stationary_leave_speed_mps &&
-        est->num_inliers < options_.stationary_min_leave_support * o->last_num_inliers) {
+    // A held object's step that would start it.
+    const bool starts =
+        o->stationary && significant && speed >= options_.stationary_leave_speed_mps;
+    if (starts && est->num_inliers < options_.stationary_min_leave_support * o->last_num_inliers) {
       return coast();  // a start seen by a few points only: an occlusion
     }
-    if (o->stationary && significant && speed >= options_.stationary_leave_speed_mps &&
-        options_.stationary_max_leave_curvature_per_m > 0.0 &&
+    if (starts && options_.stationary_max_leave_curvature_per_m > 0.0 &&
         est->twist.tail<3>().norm() >
             options_.stationary_max_leave_curvature_per_m * speed * ctx.dt +
                 options_.stationary_leave_turn_slack_rad) {
       return coast();  // no car turns that sharply as it pulls away
     }
     if (o->stationary) {
-      o->stationary = !(significant && speed >= options_.stationary_leave_speed_mps);
+      o->stationary = !starts;
       o->insignificant_steps = o->stationary ? o->insignificant_steps + 1 : 0;
     } else {
       const bool still = !significant || speed < options_.stationary_enter_speed_mps;

@@ -143,6 +143,20 @@ Eigen::Vector2d ParabolaPeakOffset(const cv::Mat& scores, int cx, int cy) {
 
 namespace {
 
+// The patch searches' integer search half-width (pixels).
+int SearchRadius(const ProjectionSearchOptions& options) {
+  return static_cast<int>(std::ceil(options.patch_search_radius_px));
+}
+
+// The patch searches' input: an 8-bit image and a square CV_32F patch.
+// Returns the patch's half size.
+int CheckSearchInput(const cv::Mat& image, const cv::Mat& patch) {
+  CHECK_EQ(image.type(), CV_8UC1);
+  CHECK_EQ(patch.type(), CV_32F);
+  CHECK_EQ(patch.rows, patch.cols);
+  return patch.rows / 2;
+}
+
 // A patch search's correlation at every integer offset (dx, dy) within
 // options.patch_search_radius_px of `predicted` whose (2h+1)² window lies
 // inside the image. One bilinear region covers every offset: the window of
@@ -172,7 +186,7 @@ OffsetScores ScoreOffsets(const cv::Mat& image,
                           Score&& score) {
   const int side = 2 * h + 1;
   OffsetScores out;
-  const int r = out.r = static_cast<int>(std::ceil(options.patch_search_radius_px));
+  const int r = out.r = SearchRadius(options);
   cv::Mat region;
   cv::getRectSubPix(
       image,
@@ -312,10 +326,7 @@ std::optional<Eigen::Vector2d> PatchSearch(const cv::Mat& image,
                                            const Eigen::Vector2d& predicted,
                                            const ProjectionSearchOptions& options) {
   if (patch.empty()) return std::nullopt;
-  CHECK_EQ(image.type(), CV_8UC1);
-  CHECK_EQ(patch.type(), CV_32F);
-  CHECK_EQ(patch.rows, patch.cols);
-  const int h = patch.rows / 2;
+  const int h = CheckSearchInput(image, patch);
   const int side = 2 * h + 1;
   // The template zero-mean once, as Ncc does for every offset.
   const int n = side * side;
@@ -364,16 +375,13 @@ std::optional<Eigen::Vector2d> MaskedPatchSearch(const cv::Mat& image,
                                                  const Eigen::Vector2d& predicted,
                                                  const ProjectionSearchOptions& options) {
   if (patch.empty()) return std::nullopt;
-  CHECK_EQ(image.type(), CV_8UC1);
-  CHECK_EQ(patch.type(), CV_32F);
-  CHECK_EQ(patch.rows, patch.cols);
+  const int h = CheckSearchInput(image, patch);
   CHECK(mask.empty() || (mask.type() == CV_8UC1 && mask.size() == image.size()));
-  const int h = patch.rows / 2;
   const int side = 2 * h + 1;
   const double min_pixels = std::max(4.0, options.min_masked_patch_share * side * side);
   // Which pixels of the search region (ScoreOffsets) lie on the object, once
   // for every offset's window.
-  const int rr = static_cast<int>(std::ceil(options.patch_search_radius_px));
+  const int rr = SearchRadius(options);
   cv::Mat on_object(side + 2 * rr, side + 2 * rr, CV_8UC1);
   for (int i = 0; i < on_object.rows; ++i) {
     for (int j = 0; j < on_object.cols; ++j) {

@@ -91,12 +91,13 @@ std::optional<Eigen::Vector2d> PatchSearch(const cv::Mat& image,
                                            const ProjectionSearchOptions& options);
 
 // PatchSearch restricted to the object: reference pixels that are NaN (off
-// the object when the patch was taken, TexturedPatch with a mask) and
-// current pixels outside `mask` (CV_8UC1, non-zero on the object; empty: no
-// restriction) take no part in an offset's correlation. The correlation's
-// peak is refined by Gauss–Newton on the shift, gain and offset over the
-// peak's pixels (options.patch_gauss_newton_iterations), kept when it stays
-// within 1 px of the parabola's vertex.
+// the object when the patch was taken, ExtractMaskedPatch) and current
+// pixels outside `mask` (CV_8UC1, non-zero on the object; empty: no
+// restriction) take no part in an offset's correlation; an offset with
+// fewer than options.min_masked_patch_share of the patch's pixels left is
+// not scored. With options.patch_gauss_newton_iterations > 0 the
+// parabola's vertex is refined by Gauss–Newton on the shift, gain and
+// offset over the peak's pixels, kept when it stays within 1 px of it.
 std::optional<Eigen::Vector2d> MaskedPatchSearch(const cv::Mat& image,
                                                  const cv::Mat& patch,
                                                  const cv::Mat& mask,

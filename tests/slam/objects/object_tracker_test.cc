@@ -621,13 +621,7 @@ TEST(ObjectTracker, AStartThatTurnsLikeNoCarDoesNotStartAParkedCar) {
     ObjectTrackerOptions options;
     options.stationary_max_leave_curvature_per_m = max_curvature;
     ObjectTracker tracker(parked.camera(), options);
-    const Eigen::Vector3d centre = parked.world_from_object().translation();
-    const Eigen::Vector3d up = parked.world_from_object().rotation().col(2);
-    const Eigen::Vector3d ahead = parked.world_from_object().rotation().col(1);
-    const SE3d turned_in_place =
-        SE3d(geometry::SO3d(), centre + 0.2 * ahead) *
-        SE3d(geometry::SO3d::Exp(up * (7.0 * M_PI / 180.0)), Eigen::Vector3d::Zero()) *
-        SE3d(geometry::SO3d(), -centre);
+    const SE3d turned_in_place = TurnedInPlace(parked.world_from_object(), 7.0, 0.2);
     int rejected = 0;
     bool stationary_at_glitch = false;
     double speed_at_glitch = -1.0;
@@ -675,18 +669,12 @@ TEST(ObjectTracker, AStepThatReversesTheTurnIsNoManoeuvre) {
     ObjectTrackerOptions options;
     options.manoeuvre_max_reversal_turn_radps = max_reversal;
     ObjectTracker tracker(seq.camera(), options);
-    const Eigen::Vector3d up = seq.world_from_object().rotation().col(2);
     const SE3d gt0 = seq.world_from_object();
     SE3d est0;
     int rejected_at_glitch = -1;
     double heading_error_at_glitch = -1.0;
     for (int i = 0; i < 10; ++i) {
-      const Eigen::Vector3d centre = seq.world_from_object().translation();
-      seq.set_measurement_glitch(i == 8 ? SE3d(geometry::SO3d(), centre) *
-                                              SE3d(geometry::SO3d::Exp(up * (-2.3 * M_PI / 180.0)),
-                                                   Eigen::Vector3d::Zero()) *
-                                              SE3d(geometry::SO3d(), -centre)
-                                        : SE3d());
+      seq.set_measurement_glitch(i == 8 ? TurnedInPlace(seq.world_from_object(), -2.3) : SE3d());
       const auto results = tracker.Process(seq.Next(4, true));
       ASSERT_TRUE(results.ok());
       ASSERT_EQ(results->size(), 1u);

@@ -119,5 +119,15 @@ inline double TurnExcessDeg(const SE3d& est_step, const SE3d& true_step) {
   const Eigen::AngleAxisd t(true_step.rotation());
   return ((e.angle() * e.axis()).dot(t.axis()) - t.angle()) * 180.0 / M_PI;
 }
+// A world offset (CarSequence::set_measurement_glitch) that turns an object
+// by `deg` about its own up axis (the object frame's z) through its origin,
+// then moves it `ahead_m` along its heading (the object frame's y).
+inline SE3d TurnedInPlace(const SE3d& world_from_object, double deg, double ahead_m = 0.0) {
+  const Eigen::Vector3d centre = world_from_object.translation();
+  const Eigen::Matrix3d axes = world_from_object.rotation();
+  return SE3d(geometry::SO3d(), centre + ahead_m * axes.col(1)) *
+         SE3d(geometry::SO3d::Exp(axes.col(2) * (deg * M_PI / 180.0)), Eigen::Vector3d::Zero()) *
+         SE3d(geometry::SO3d(), -centre);
+}
 
 }  // namespace twist::objects::testing
