@@ -9,6 +9,7 @@
 #include <opencv2/imgproc.hpp>
 #include <queue>
 #include <random>
+#include <unordered_set>
 
 namespace twist::features {
 namespace {
@@ -17,6 +18,8 @@ constexpr int kHalfPatch = 15;      // orientation patch radius (31 px patch)
 constexpr int kEdge = 19;           // keypoints kept this far from the level border
 constexpr int kPatternRadius = 13;  // BRIEF test points lie in this disc
 constexpr int kCellSize = 32;       // FAST threshold fallback cells (px)
+// Added to a favoured corner's response while the level is distributed.
+constexpr float kFavoured = 1e4f;
 
 struct QuadNode {
   int x0, y0, x1, y1;
@@ -27,6 +30,86 @@ struct QuadNode {
 // is fixed by the standard, so the pattern is the same on every platform.
 double Uniform01(std::mt19937_64* rng) {
   return (static_cast<double>((*rng)() >> 11) + 0.5) * (1.0 / 9007199254740992.0);
+}
+
+// Quadtree distribution of a level's corners: split the most crowded node
+// until there are `target` nodes or no node can be split, then keep the
+// strongest corner of each (at most `target`, the strongest first).
+std::vector<cv::KeyPoint> SpreadCorners(const std::vector<cv::KeyPoint>& cand,
+                                        int target,
+                                        int cols,
+                                        int rows) {
+  if (cand.empty() || target <= 0) return {};
+  std::vector<QuadNode> nodes;
+  const int x0 = kEdge, x1 = cols - kEdge, y0 = kEdge, y1 = rows - kEdge;
+  const int w = x1 - x0, h = y1 - y0;
+  const int n_root = std::max(1, static_cast<int>(std::lround(static_cast<double>(w) / h)));
+  for (int i = 0; i < n_root; ++i) {
+    nodes.push_back({x0 + w * i / n_root, y0, x0 + w * (i + 1) / n_root, y1, {}});
+  }
+  for (int i = 0; i < static_cast<int>(cand.size()); ++i) {
+    const int r = std::min(n_root - 1, static_cast<int>((cand[i].pt.x - x0) * n_root / w));
+    nodes[std::max(r, 0)].idx.push_back(i);
+  }
+  // (count, -creation order) max-heap: deterministic ties.
+  using Entry = std::pair<int, int>;
+  std::priority_queue<Entry> heap;
+  std::vector<char> alive(nodes.size(), 1);
+  int num_alive = 0;
+  for (int i = 0; i < static_cast<int>(nodes.size()); ++i) {
+    if (nodes[i].idx.empty()) {
+      alive[i] = 0;
+      continue;
+    }
+    ++num_alive;
+    heap.push({static_cast<int>(nodes[i].idx.size()), -i});
+  }
+  while (num_alive < target && !heap.empty()) {
+    const int ni = -heap.top().second;
+    heap.pop();
+    QuadNode node = std::move(nodes[ni]);
+    if (node.idx.size() <= 1 || node.x1 - node.x0 < 2 || node.y1 - node.y0 < 2) {
+      nodes[ni] = std::move(node);  // a leaf, stays alive, never split again
+      continue;
+    }
+    alive[ni] = 0;
+    --num_alive;
+    const int mx = (node.x0 + node.x1) / 2, my = (node.y0 + node.y1) / 2;
+    QuadNode ch[4] = {{node.x0, node.y0, mx, my, {}},
+                      {mx, node.y0, node.x1, my, {}},
+                      {node.x0, my, mx, node.y1, {}},
+                      {mx, my, node.x1, node.y1, {}}};
+    for (int i : node.idx) {
+      const cv::Point2f& p = cand[i].pt;
+      ch[(p.x >= mx ? 1 : 0) + (p.y >= my ? 2 : 0)].idx.push_back(i);
+    }
+    for (auto& c : ch) {
+      if (c.idx.empty()) continue;
+      const int id = static_cast<int>(nodes.size());
+      const int count = static_cast<int>(c.idx.size());
+      nodes.push_back(std::move(c));
+      alive.push_back(1);
+      ++num_alive;
+      heap.push({count, -id});
+    }
+  }
+  std::vector<cv::KeyPoint> kept;
+  kept.reserve(num_alive);
+  for (size_t n = 0; n < nodes.size(); ++n) {
+    if (!alive[n]) continue;
+    int best = nodes[n].idx[0];
+    for (int i : nodes[n].idx) {
+      if (cand[i].response > cand[best].response) best = i;
+    }
+    kept.push_back(cand[best]);
+  }
+  if (static_cast<int>(kept.size()) > target) {
+    std::stable_sort(kept.begin(), kept.end(), [](const cv::KeyPoint& a, const cv::KeyPoint& b) {
+      return a.response > b.response;
+    });
+    kept.resize(target);
+  }
+  return kept;
 }
 
 }  // namespace
@@ -232,86 +315,44 @@ void OrbExtractor::ExtractLevel(const cv::Mat& img,
     if (!mask.empty()) {
       const uint8_t m = mask.at<uint8_t>(cvRound(kp.pt.y), cvRound(kp.pt.x));
       if (m == 0) continue;
-      if (m >= 128) kp.response += 1e4f;  // favoured region wins within its cell
+      if (m >= 128) kp.response += kFavoured;  // favoured region wins within its cell
     }
     cand.push_back(kp);
   }
   if (cand.empty()) return;
 
-  // Quadtree distribution: split the most crowded node until there are
-  // `target` nodes or no node can be split, then keep the best corner of each.
-  std::vector<QuadNode> nodes;
-  const int x0 = kEdge, x1 = img.cols - kEdge, y0 = kEdge, y1 = img.rows - kEdge;
-  const int w = x1 - x0, h = y1 - y0;
-  const int n_root = std::max(1, static_cast<int>(std::lround(static_cast<double>(w) / h)));
-  for (int i = 0; i < n_root; ++i) {
-    nodes.push_back({x0 + w * i / n_root, y0, x0 + w * (i + 1) / n_root, y1, {}});
-  }
-  for (int i = 0; i < static_cast<int>(cand.size()); ++i) {
-    const int r = std::min(n_root - 1, static_cast<int>((cand[i].pt.x - x0) * n_root / w));
-    nodes[std::max(r, 0)].idx.push_back(i);
-  }
-  // (count, -creation order) max-heap: deterministic ties.
-  using Entry = std::pair<int, int>;
-  std::priority_queue<Entry> heap;
-  std::vector<char> alive(nodes.size(), 1);
-  int num_alive = 0;
-  for (int i = 0; i < static_cast<int>(nodes.size()); ++i) {
-    if (nodes[i].idx.empty()) {
-      alive[i] = 0;
-      continue;
+  std::vector<cv::KeyPoint> kept = SpreadCorners(cand, target, img.cols, img.rows);
+  // With favoured_on_top, favoured corners come on top of the budget: those
+  // that won their nodes in the spread over all corners are kept, and the other corners are
+  // spread again without them, over the whole budget (an object's keypoints
+  // do not take the camera's).
+  if (options_.favoured_on_top && std::any_of(cand.begin(), cand.end(), [](const cv::KeyPoint& kp) {
+        return kp.response >= kFavoured;
+      })) {
+    std::vector<cv::KeyPoint> favoured, others;
+    std::unordered_set<int64_t> in_budget;   // the other corners the first spread kept
+    auto key = [](const cv::KeyPoint& kp) {  // corners lie on whole pixels of their level
+      return (static_cast<int64_t>(std::lround(kp.pt.y)) << 32) + std::lround(kp.pt.x);
+    };
+    for (const cv::KeyPoint& kp : kept) {
+      if (kp.response >= kFavoured) {
+        favoured.push_back(kp);
+      } else {
+        in_budget.insert(key(kp));
+      }
     }
-    ++num_alive;
-    heap.push({static_cast<int>(nodes[i].idx.size()), -i});
-  }
-  while (num_alive < target && !heap.empty()) {
-    const int ni = -heap.top().second;
-    heap.pop();
-    QuadNode node = std::move(nodes[ni]);
-    if (node.idx.size() <= 1 || node.x1 - node.x0 < 2 || node.y1 - node.y0 < 2) {
-      nodes[ni] = std::move(node);  // a leaf, stays alive, never split again
-      continue;
+    for (const cv::KeyPoint& kp : cand) {
+      if (kp.response < kFavoured) others.push_back(kp);
     }
-    alive[ni] = 0;
-    --num_alive;
-    const int mx = (node.x0 + node.x1) / 2, my = (node.y0 + node.y1) / 2;
-    QuadNode ch[4] = {{node.x0, node.y0, mx, my, {}},
-                      {mx, node.y0, node.x1, my, {}},
-                      {node.x0, my, mx, node.y1, {}},
-                      {mx, my, node.x1, node.y1, {}}};
-    for (int i : node.idx) {
-      const cv::Point2f& p = cand[i].pt;
-      ch[(p.x >= mx ? 1 : 0) + (p.y >= my ? 2 : 0)].idx.push_back(i);
+    kept = SpreadCorners(others, target, img.cols, img.rows);
+    for (cv::KeyPoint& kp : kept) {
+      if (in_budget.count(key(kp)) == 0) kp.class_id = kExtraKeypoint;
     }
-    for (auto& c : ch) {
-      if (c.idx.empty()) continue;
-      const int id = static_cast<int>(nodes.size());
-      const int count = static_cast<int>(c.idx.size());
-      nodes.push_back(std::move(c));
-      alive.push_back(1);
-      ++num_alive;
-      heap.push({count, -id});
-    }
-  }
-  std::vector<cv::KeyPoint> kept;
-  kept.reserve(num_alive);
-  for (size_t n = 0; n < nodes.size(); ++n) {
-    if (!alive[n]) continue;
-    int best = nodes[n].idx[0];
-    for (int i : nodes[n].idx) {
-      if (cand[i].response > cand[best].response) best = i;
-    }
-    kept.push_back(cand[best]);
-  }
-  if (static_cast<int>(kept.size()) > target) {
-    std::stable_sort(kept.begin(), kept.end(), [](const cv::KeyPoint& a, const cv::KeyPoint& b) {
-      return a.response > b.response;
-    });
-    kept.resize(target);
+    kept.insert(kept.end(), favoured.begin(), favoured.end());
   }
   const float patch_size = 31.f * pyramid_.scale[level];
   for (cv::KeyPoint& kp : kept) {
-    if (kp.response >= 1e4f) kp.response -= 1e4f;
+    if (kp.response >= kFavoured) kp.response -= kFavoured;
     kp.octave = level;
     kp.size = patch_size;
     kp.angle = IntensityCentroidAngle(img, kp.pt);
@@ -350,8 +391,10 @@ void OrbExtractor::Extract(const cv::Mat& image,
                            const cv::Mat& region_mask,
                            std::vector<cv::KeyPoint>* keypoints,
                            cv::Mat* descriptors,
-                           std::vector<cv::Mat>* levels_out) const {
+                           std::vector<cv::Mat>* levels_out,
+                           double budget_scale) const {
   CHECK_EQ(image.type(), CV_8UC1);
+  CHECK(budget_scale > 0.0 && budget_scale <= 10.0) << budget_scale;
   CHECK(region_mask.empty() ||
         (region_mask.type() == CV_8UC1 && region_mask.size() == image.size()));
   std::vector<cv::Mat> levels;
@@ -368,7 +411,8 @@ void OrbExtractor::Extract(const cv::Mat& image,
         cv::resize(region_mask, level_mask, levels[l].size(), 0, 0, cv::INTER_NEAREST);
       }
     }
-    ExtractLevel(levels[l], level_mask, l, features_per_level_[l], &per_level[l]);
+    const int target = static_cast<int>(std::lround(features_per_level_[l] * budget_scale));
+    ExtractLevel(levels[l], level_mask, l, target, &per_level[l]);
     total += static_cast<int>(per_level[l].size());
   }
   descriptors->create(total, kDescriptorBytes, CV_8UC1);

@@ -27,6 +27,9 @@ struct OrbOptions {
   int fast_threshold = 20;                // first FAST threshold
   int min_fast_threshold = 7;             // fallback threshold in cells without corners
   uint64_t pattern_seed = 0x0b5e55edULL;  // BRIEF test pattern seed
+  // Corners of a favoured region (see Extract) come on top of each level's
+  // budget instead of taking part of it.
+  bool favoured_on_top = false;
 
   absl::Status Validate() const;
 };
@@ -45,11 +48,17 @@ struct ScalePyramid {
 };
 
 // Region mask convention for Extract(): CV_8UC1, same size as the image;
-// 0 = exclude, 1..127 = normal, 128..255 = favour (corners there win ties of
-// the distribution and are kept first).
+// 0 = exclude, 1..127 = normal, 128..255 = favour: corners there win their
+// cells in the distribution. With OrbOptions::favoured_on_top they are kept
+// on top of the level's budget, which the other corners then get whole in a
+// second spread without them (the object tracker's keypoints, favoured
+// inside dynamic segments, do not take the camera's; docs/objects.md §48); a
+// corner that only this second spread keeps has class_id kExtraKeypoint.
+// Every other keypoint has class_id -1.
 class OrbExtractor {
  public:
   static constexpr int kDescriptorBytes = 32;
+  static constexpr int kExtraKeypoint = 1;
 
   explicit OrbExtractor(const OrbOptions& options);
 
@@ -57,11 +66,13 @@ class OrbExtractor {
   // Keypoints are in level-0 pixels, `octave` = level, `angle` in degrees,
   // `size` = patch diameter at that level; descriptors N x 32 CV_8UC1.
   // `levels` (optional) receives the pyramid images (level 0 = `image`).
+  // `budget_scale` (in (0, 10]) multiplies every level's number of features.
   void Extract(const cv::Mat& image,
                const cv::Mat& region_mask,
                std::vector<cv::KeyPoint>* keypoints,
                cv::Mat* descriptors,
-               std::vector<cv::Mat>* levels = nullptr) const;
+               std::vector<cv::Mat>* levels = nullptr,
+               double budget_scale = 1.0) const;
 
   const OrbOptions& options() const { return options_; }
   const ScalePyramid& pyramid() const { return pyramid_; }

@@ -194,7 +194,12 @@ StereoMatchResult MatchStereo(const geometry::StereoCamera& camera,
 
   // Robust rejection of poor block matches.
   if (!sad_of_match.empty()) {
-    std::vector<std::pair<int, int>> sorted = sad_of_match;
+    std::vector<std::pair<int, int>> sorted;
+    sorted.reserve(sad_of_match.size());
+    for (const auto& m : sad_of_match) {
+      if (left_kps[m.second].class_id != OrbExtractor::kExtraKeypoint) sorted.push_back(m);
+    }
+    if (sorted.empty()) sorted = sad_of_match;
     std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
     const double median = sorted[sorted.size() / 2].first;
     const double th = options.sad_median_factor * median;

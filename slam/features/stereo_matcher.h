@@ -7,7 +7,10 @@
 // by SAD block matching on the pyramid level (window 2w+1, search ±L) and a
 // parabola through the three SAD values around the minimum (or the zero-mean
 // SSD refinement of SubpixelMethod). Matches with a SAD far above the median
-// (robust scale) are rejected.
+// (robust scale) are rejected; the median is that of the keypoints within
+// the extractor's budget (class_id != OrbExtractor::kExtraKeypoint), so that
+// the camera's extra keypoints do not change which of the others keep their
+// match (docs/objects.md §48).
 #pragma once
 
 #include <opencv2/core.hpp>

@@ -1,8 +1,11 @@
 #include "slam/objects/masked_stereo.h"
 
+#include <glog/logging.h>
+
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <opencv2/imgproc.hpp>
 #include <vector>
 
 namespace twist::objects {
@@ -165,6 +168,46 @@ std::optional<double> MaskedDisparity(const cv::Mat& left,
   d += gx * (uv.x() - cx) + gy * (uv.y() - cy);
   if (std::abs(d - d_int) > 1.0 || !(g > 0.0)) return std::nullopt;
   return d;
+}
+
+int RemeasureBesideMask(const cv::Mat& left,
+                        const cv::Mat& right,
+                        const cv::Mat& dynamic,
+                        int margin_px,
+                        const std::vector<cv::KeyPoint>& keypoints,
+                        const std::vector<double>& half_window_per_level,
+                        double bf,
+                        std::vector<float>* u_right,
+                        std::vector<float>* depth,
+                        const MaskedStereoOptions& options) {
+  CHECK(dynamic.type() == CV_8UC1 && dynamic.size() == left.size());
+  CHECK_EQ(u_right->size(), keypoints.size());
+  CHECK_EQ(depth->size(), keypoints.size());
+  if (margin_px <= 0 || cv::countNonZero(dynamic) == 0) return 0;
+  cv::Mat still = dynamic == 0, near;
+  const int side = 2 * margin_px + 1;
+  cv::dilate(dynamic != 0, near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side)));
+  int measured = 0;
+  for (size_t i = 0; i < keypoints.size(); ++i) {
+    if ((*u_right)[i] < 0.0f) continue;
+    const cv::KeyPoint& kp = keypoints[i];
+    const int x = std::clamp(cvRound(kp.pt.x), 0, left.cols - 1);
+    const int y = std::clamp(cvRound(kp.pt.y), 0, left.rows - 1);
+    if (still.at<uint8_t>(y, x) == 0 || near.at<uint8_t>(y, x) == 0) continue;
+    CHECK(kp.octave >= 0 && kp.octave < static_cast<int>(half_window_per_level.size()));
+    ++measured;
+    const Eigen::Vector2d uv(kp.pt.x, kp.pt.y);
+    const std::optional<double> d = MaskedDisparity(
+        left, right, still, uv, uv.x() - (*u_right)[i], half_window_per_level[kp.octave], options);
+    if (d && *d > 0.0) {
+      (*u_right)[i] = static_cast<float>(uv.x() - *d);
+      (*depth)[i] = static_cast<float>(bf / *d);
+    } else {
+      (*u_right)[i] = -1.0f;
+      (*depth)[i] = -1.0f;
+    }
+  }
+  return measured;
 }
 
 }  // namespace twist::objects

@@ -22,6 +22,7 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 #include <optional>
+#include <vector>
 
 namespace twist::objects {
 
@@ -52,5 +53,27 @@ std::optional<double> MaskedDisparity(const cv::Mat& left,
                                       double initial_disparity,
                                       double half_window,
                                       const MaskedStereoOptions& options = MaskedStereoOptions());
+
+// Static keypoints beside dynamic segments (docs/objects.md §48). The stereo
+// matcher's block of a keypoint just outside a car straddles the car, whose
+// disparity pulls the keypoint's towards it, and the background right beside
+// a car's edge may be hidden behind the car in the right image. Each keypoint
+// outside `dynamic` (CV_8UC1, non-zero on dynamic segments) but within
+// `margin_px` of it that has a stereo match (u_right >= 0) gets its disparity
+// measured again by MaskedDisparity on the pixels outside `dynamic`, around
+// its matched disparity, with the half window
+// half_window_per_level[keypoint.octave]; one that cannot be measured so
+// loses its match (u_right and depth -1). depth = bf / disparity.
+// Returns the number of keypoints measured again (kept or not).
+int RemeasureBesideMask(const cv::Mat& left,
+                        const cv::Mat& right,
+                        const cv::Mat& dynamic,
+                        int margin_px,
+                        const std::vector<cv::KeyPoint>& keypoints,
+                        const std::vector<double>& half_window_per_level,
+                        double bf,
+                        std::vector<float>* u_right,
+                        std::vector<float>* depth,
+                        const MaskedStereoOptions& options = MaskedStereoOptions());
 
 }  // namespace twist::objects

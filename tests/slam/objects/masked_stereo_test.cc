@@ -112,6 +112,44 @@ TEST(MaskedStereo, RejectsWhatItCannotMeasure) {
   EXPECT_FALSE(MaskedDisparity(wrong, s.right, s.mask, Eigen::Vector2d(110, 60), 12.0, 8.0));
 }
 
+// Static keypoints beside a dynamic segment (RemeasureBesideMask): on the
+// background right of the foreground (visible in both images) the disparity
+// is measured again on background pixels only; keypoints on the segment, far
+// from it, or without a match are left as they were.
+TEST(MaskedStereo, RemeasuresStaticKeypointsBesideTheMask) {
+  const double d_fg = 12.3, d_bg = 4.0, bf = 100.0;
+  const Synthetic s = MakeScene(d_fg, d_bg, 1.05, -3.0);
+  std::vector<cv::KeyPoint> kps;
+  std::vector<float> u_right, depth;
+  auto add = [&](float x, float y, float disparity) {
+    kps.emplace_back(cv::Point2f(x, y), 31.f, -1.f, 0.f, 0);
+    u_right.push_back(disparity > 0.f ? x - disparity : -1.f);
+    depth.push_back(disparity > 0.f ? static_cast<float>(bf) / disparity : -1.f);
+  };
+  // Beside the foreground's right border (x1 = 140), pulled towards it.
+  for (int k : {2, 4, 6}) add(static_cast<float>(140 + k), 60.f, 5.5f);
+  add(110.f, 60.f, 11.0f);  // on the foreground
+  add(20.f, 60.f, 5.5f);    // far from it (margin 8 px)
+  add(144.f, 70.f, -1.f);   // beside it, no match
+  const std::vector<float> before = u_right;
+  const std::vector<double> half(1, 8.0);
+  const int n = RemeasureBesideMask(s.left, s.right, s.mask, 8, kps, half, bf, &u_right, &depth);
+  EXPECT_EQ(n, 3);
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_GE(u_right[i], 0.f) << i;
+    EXPECT_NEAR(kps[i].pt.x - u_right[i], d_bg, 0.1) << i;
+    EXPECT_NEAR(depth[i], bf / (kps[i].pt.x - u_right[i]), 1e-3) << i;
+  }
+  for (int i = 3; i < 6; ++i) EXPECT_EQ(u_right[i], before[i]) << i;
+  // A margin of 0 changes nothing; wrong sizes are programming errors.
+  std::vector<float> u0 = before, d0 = depth;
+  EXPECT_EQ(RemeasureBesideMask(s.left, s.right, s.mask, 0, kps, half, bf, &u0, &d0), 0);
+  EXPECT_EQ(u0, before);
+  std::vector<float> short_depth(2);
+  EXPECT_DEATH(RemeasureBesideMask(s.left, s.right, s.mask, 8, kps, half, bf, &u0, &short_depth),
+               "");
+}
+
 double Median(std::vector<double> v) {
   std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
   return v[v.size() / 2];
@@ -279,6 +317,75 @@ TEST(MaskedStereo, RenderedRoadAgainstExactDepth) {
   EXPECT_GT(Median(raw), 0.05);  // the bias the masked measurement removes
   EXPECT_LT(std::abs(Median(masked)), 0.03);
   EXPECT_LT(Mad(masked), 0.5 * Mad(raw));
+}
+
+// The static keypoints beside the cars and people of `follow_braking`
+// (seed 1, frames 0-90 step 15; the engine's matcher, then
+// RemeasureBesideMask with the engine's 8 px), against the rendered depth
+// under the keypoint. Measured: 814 keypoints beside a segment, 691 of them
+// with a depth inside 60 m changed, 115 of those dropped; |depth error|
+// median 4.46 % -> 1.37 %, share over 5 % 46 % -> 30 %.
+TEST(MaskedStereo, RenderedStaticKeypointsBesideTheCars) {
+  const RenderedFrontEnd scene("follow_braking", 1);
+  const geometry::StereoCamera& cam = scene.camera();
+  const features::StereoMatchOptions so;
+  std::vector<double> half(scene.orb().pyramid().scale.size());
+  for (size_t l = 0; l < half.size(); ++l) {
+    half[l] = (so.sad_half_window + 0.5) * scene.orb().pyramid().scale[l];
+  }
+  std::vector<double> raw, measured;
+  int beside = 0, dropped = 0;
+  for (int frame = 0; frame <= 90; frame += 15) {
+    MatchedFrame m = scene.Match(frame);
+    const sim::StereoRender& r = m.render;
+    cv::Mat dynamic = cv::Mat::zeros(r.panoptic.size(), CV_8UC1);
+    for (int y = 0; y < r.panoptic.rows; ++y) {
+      for (int x = 0; x < r.panoptic.cols; ++x) {
+        const int cls = r.panoptic.at<uint16_t>(y, x) / 1000;
+        if (cls == sim::kClassCar || cls == sim::kClassPerson) dynamic.at<uint8_t>(y, x) = 255;
+      }
+    }
+    const std::vector<float> before = m.stereo.u_right;
+    beside += RemeasureBesideMask(r.left,
+                                  r.right,
+                                  dynamic,
+                                  8,
+                                  m.keypoints,
+                                  half,
+                                  cam.bf(),
+                                  &m.stereo.u_right,
+                                  &m.stereo.depth);
+    for (size_t k = 0; k < m.keypoints.size(); ++k) {
+      if (before[k] == m.stereo.u_right[k]) continue;  // not beside a segment (or unchanged)
+      const cv::KeyPoint& kp = m.keypoints[k];
+      const double z_true = r.depth.at<float>(cvRound(kp.pt.y), cvRound(kp.pt.x));
+      if (!(z_true > 0.0 && z_true < 60.0)) continue;
+      raw.push_back(std::abs(cam.bf() / (kp.pt.x - before[k]) / z_true - 1.0));
+      if (m.stereo.u_right[k] < 0.f) {
+        ++dropped;
+        continue;
+      }
+      measured.push_back(std::abs(cam.bf() / (kp.pt.x - m.stereo.u_right[k]) / z_true - 1.0));
+    }
+  }
+  auto share_over = [](const std::vector<double>& v, double t) {
+    return static_cast<double>(std::count_if(v.begin(), v.end(), [&](double e) { return e > t; })) /
+           std::max<size_t>(1, v.size());
+  };
+  std::printf(
+      "  %d static keypoints beside cars and people, %zu changed, %d dropped: |depth error| "
+      "median %.2f %% -> %.2f %%, over 5 %%: %.0f %% -> %.0f %%\n",
+      beside,
+      raw.size(),
+      dropped,
+      100 * Median(raw),
+      100 * Median(measured),
+      100 * share_over(raw, 0.05),
+      100 * share_over(measured, 0.05));
+  ASSERT_GE(raw.size(), 50u);
+  ASSERT_GE(measured.size(), raw.size() / 3);
+  EXPECT_LT(Median(measured), 0.5 * Median(raw));
+  EXPECT_LT(share_over(measured, 0.05), 0.8 * share_over(raw, 0.05));
 }
 
 // ObjectTrackerOptions::measure_tracked_stereo: the leading car of the
