@@ -233,6 +233,8 @@ bool ReadRunConfig(const std::string& path, RunConfig* config, std::string* erro
           s.parked_objects_static = v != 0;
         else if (k == "dense_keyframes")
           s.dense_keyframes = v != 0;
+        else if (k == "extra_camera_keypoints")
+          s.extra_camera_keypoints = v != 0;
         else if (k == "seed")
           s.seed = static_cast<uint64_t>(v);
         else {

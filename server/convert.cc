@@ -339,6 +339,9 @@ absl::Status ApplyOptions(const pb::SlamOptions& in, SlamOptions* options) {
   if (in.has_object_ba_iterations()) options->object_ba_iterations = in.object_ba_iterations();
   if (in.has_parked_objects_static()) options->parked_objects_static = in.parked_objects_static();
   if (in.has_dense_keyframes()) options->dense_keyframes = in.dense_keyframes();
+  if (in.has_extra_camera_keypoints()) {
+    options->extra_camera_keypoints = in.extra_camera_keypoints();
+  }
   return absl::OkStatus();
 }
 
@@ -362,6 +365,7 @@ void ToProto(const SlamOptions& options, pb::SlamOptions* out) {
   out->set_object_ba_iterations(options.object_ba_iterations);
   out->set_parked_objects_static(options.parked_objects_static);
   out->set_dense_keyframes(options.dense_keyframes);
+  out->set_extra_camera_keypoints(options.extra_camera_keypoints);
 }
 
 void ToProto(const geometry::StereoCamera& camera, pb::StereoCalibration* out) {

@@ -193,6 +193,8 @@ absl::Status ReadSlamOptions(const cv::FileNode& node, SlamOptions* o) {
       o->parked_objects_static = v != 0;
     else if (key == "dense_keyframes")
       o->dense_keyframes = v != 0;
+    else if (key == "extra_camera_keypoints")
+      o->extra_camera_keypoints = v != 0;
     else if (key == "seed")
       o->seed = static_cast<uint64_t>(v);
     else

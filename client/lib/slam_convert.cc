@@ -78,6 +78,7 @@ pb::SessionConfig SessionConfigToProto(const SessionConfig& config) {
   po->set_object_ba_iterations(o.object_ba_iterations);
   po->set_parked_objects_static(o.parked_objects_static);
   po->set_dense_keyframes(o.dense_keyframes);
+  po->set_extra_camera_keypoints(o.extra_camera_keypoints);
   return out;
 }
 

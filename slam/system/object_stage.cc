@@ -11,6 +11,7 @@
 #include <unordered_set>
 
 #include "slam/common/timer.h"
+#include "slam/features/orb_extractor.h"
 #include "slam/features/stereo_matcher.h"
 #include "slam/objects/dynamic_ba.h"
 #include "slam/objects/joint_frames.h"
@@ -41,6 +42,32 @@ bool IsAxisJoint(joints::JointType t) {
   return t == joints::JointType::kRevolute || t == joints::JointType::kPrismatic ||
          t == joints::JointType::kCylindrical || t == joints::JointType::kHelical ||
          t == joints::JointType::kSphereCylinder;
+}
+
+// The keypoints the object stage reads: `f` without the camera's extra
+// keypoints (OrbExtractor::kExtraKeypoint, docs/objects.md §48), which are
+// written to `*storage` when there are any.
+const map::FrameFeatures& WithoutExtraKeypoints(const map::FrameFeatures& f,
+                                                map::FrameFeatures* storage) {
+  std::vector<int> keep;
+  keep.reserve(f.keypoints.size());
+  for (int i = 0; i < f.size(); ++i) {
+    if (f.keypoints[i].class_id != features::OrbExtractor::kExtraKeypoint) keep.push_back(i);
+  }
+  if (static_cast<int>(keep.size()) == f.size()) return f;
+  storage->descriptors.create(
+      static_cast<int>(keep.size()), f.descriptors.cols, f.descriptors.type());
+  for (size_t j = 0; j < keep.size(); ++j) {
+    const int i = keep[j];
+    storage->keypoints.push_back(f.keypoints[i]);
+    f.descriptors.row(i).copyTo(storage->descriptors.row(static_cast<int>(j)));
+    storage->u_right.push_back(f.u_right[i]);
+    storage->depth.push_back(f.depth[i]);
+    storage->labels.push_back(f.labels[i]);
+    storage->is_static.push_back(f.is_static[i]);
+  }
+  storage->disparity_offset = f.disparity_offset;
+  return *storage;
 }
 
 }  // namespace
@@ -196,7 +223,8 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
   Stopwatch sw;
   const geometry::StereoCamera& cam = config_.camera;
   const SE3d world_from_camera = in.camera_from_world.Inverse();
-  const map::FrameFeatures& f = *in.features;
+  map::FrameFeatures storage;
+  const map::FrameFeatures& f = WithoutExtraKeypoints(*in.features, &storage);
   const int n = f.size();
 
   // Stereo keypoints in the world, and plane points per plane class.
@@ -204,6 +232,7 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
   const bool masked_planes =
       options_.masked_plane_stereo && !in.right.empty() && !in.panoptic.empty();
   std::map<int, cv::Mat> class_masks;  // plane class -> its mask, built on first use
+  cv::Mat near_dynamic;  // within plane_dynamic_margin_px of a dynamic segment, on first use
   for (int i = 0; i < n; ++i) {
     if (f.u_right[i] < 0.0f) continue;
     auto p = cam.TriangulateStereo(
@@ -213,6 +242,17 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
     const int cls = semantic::ClassOf(f.labels[i]);
     auto it = planes_.find(cls);
     if (it == planes_.end() || !f.is_static[i]) continue;
+    if (options_.plane_dynamic_margin_px > 0 && !in.panoptic.empty()) {
+      if (near_dynamic.empty()) {
+        const int side = 2 * options_.plane_dynamic_margin_px + 1;
+        cv::dilate(FavourMask(in.panoptic, config_.classes) >= 128,
+                   near_dynamic,
+                   cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side)));
+      }
+      const int x = std::clamp(cvRound(f.keypoints[i].pt.x), 0, near_dynamic.cols - 1);
+      const int y = std::clamp(cvRound(f.keypoints[i].pt.y), 0, near_dynamic.rows - 1);
+      if (near_dynamic.at<uint8_t>(y, x) != 0) continue;
+    }
     if (masked_planes) {
       auto mask = class_masks.find(cls);
       if (mask == class_masks.end())

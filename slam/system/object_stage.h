@@ -75,6 +75,13 @@ struct ObjectStageOptions {
   // ~5 ms per frame on the generated street scenes (objects_bench).
   bool masked_plane_stereo = true;
   double plane_stereo_half_px = 5.5;  // the masked block's half size (level-0 pixels)
+  // Plane points within this many pixels of a dynamic segment are not used:
+  // the road beside a car may be hidden behind it in the right image, and
+  // the engine measures the stereo of static keypoints next to a segment
+  // again for the camera (docs/objects.md §48). 0: all used. SlamSystem sets
+  // it to 24 with SlamOptions::extra_camera_keypoints (measured there; with
+  // the budget as it is, 8 px was neutral: docs/objects.md §47).
+  int plane_dynamic_margin_px = 0;
   // Dynamic BA over the last frames (0: off). The window is also bounded by
   // SlamOptions::temporal_window_s. SlamSystem sets it from
   // SlamOptions::object_ba_window_frames (10 by default; the solve is

@@ -13,6 +13,7 @@ features::OrbOptions OrbOptionsFrom(const SlamOptions& o) {
   orb.scale_factor = o.scale_factor;
   orb.fast_threshold = o.fast_threshold;
   orb.min_fast_threshold = std::min(7, o.fast_threshold);
+  orb.favoured_on_top = o.extra_camera_keypoints;
   return orb;
 }
 

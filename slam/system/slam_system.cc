@@ -20,6 +20,7 @@
 #include "slam/features/stereo_matcher.h"
 #include "slam/map/map.h"
 #include "slam/mapping/local_mapper.h"
+#include "slam/objects/masked_stereo.h"
 #include "slam/system/binary_io.h"
 #include "slam/system/object_stage.h"
 #include "slam/tracking/camera_tracker.h"
@@ -62,9 +63,27 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // (ObjectPoint::patch_view_in_object). Older files load with none: with
 // ObjectTrackerOptions::patch_refresh_view_change_deg on, each patch is taken
 // again at the point's next match.
-constexpr uint32_t kFormatVersion = 13;
+// 14: + SlamOptions::extra_camera_keypoints. Older files load with it off.
+constexpr uint32_t kFormatVersion = 14;
 // Covisible keyframes in the local BA with dense keyframes (SlamOptions).
 constexpr int kDenseLocalBaKeyFrames = 8;
+// With SlamOptions::extra_camera_keypoints the right image's budget grows by
+// this many times the favoured (dynamic) share of the left image: favoured
+// keypoints are extra to the left budget,
+// and they win their cells, so they number about 1.5 times their area share
+// (follow_braking: 1.44 at level 0, 1.6 over all levels).
+constexpr double kFavouredKeypointsPerShare = 1.5;
+// Static keypoints this close (px) to a dynamic segment have their stereo
+// measured again on static pixels only (objects::RemeasureBesideMask) with
+// SlamOptions::extra_camera_keypoints: with the favoured keypoints on top of
+// the budget there are more of them beside
+// the cars, and their blocks straddling a car drifted the camera
+// (docs/objects.md §48).
+constexpr int kStaticStereoBesideDynamicPx = 8;
+// ObjectStageOptions::plane_dynamic_margin_px with extra_camera_keypoints:
+// the extra road keypoints beside the cars slowed the planar cars down
+// (docs/objects.md §47).
+constexpr int kPlaneDynamicMarginPx = 24;
 
 tracking::TrackerOptions TrackerOptionsFrom(const SlamOptions& o) {
   tracking::TrackerOptions t;
@@ -194,6 +213,7 @@ void WriteConfig(const SessionConfig& c, system_io::BinaryWriter* w) {
   w->Pod<int32_t>(o.object_ba_iterations);
   w->Pod<uint8_t>(o.parked_objects_static);
   w->Pod<uint8_t>(o.dense_keyframes);
+  w->Pod<uint8_t>(o.extra_camera_keypoints);
 }
 
 absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r, uint32_t version) {
@@ -231,6 +251,7 @@ absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r, uint32_t ve
     o.parked_objects_static = false;
   }
   o.dense_keyframes = version >= 9 && r->Pod<uint8_t>() != 0;
+  o.extra_camera_keypoints = version >= 14 && r->Pod<uint8_t>() != 0;
   if (!r->ok()) return absl::DataLossError("state file truncated in the configuration");
   absl::StatusOr<joints::ClassTable> table = joints::ClassTable::FromText(classes);
   if (!table.ok()) {
@@ -384,6 +405,8 @@ class SlamSystemImpl final : public SlamSystem {
       ObjectStageOptions so;
       so.ba_window_frames = config_.options.object_ba_window_frames;
       so.ba_iterations = config_.options.object_ba_iterations;
+      if (config_.options.extra_camera_keypoints)
+        so.plane_dynamic_margin_px = kPlaneDynamicMarginPx;
       objects_ = std::make_unique<ObjectStage>(config_, so);
     }
   }
@@ -470,11 +493,21 @@ std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
   std::vector<cv::KeyPoint> right_kps;
   cv::Mat right_desc;
   std::vector<cv::Mat> left_levels, right_levels;
-  std::thread right_thread(
-      [&] { orb_.Extract(right, cv::Mat(), &right_kps, &right_desc, &right_levels); });
-  // Keypoints favoured inside dynamic segments when objects are tracked.
+  // Keypoints favoured inside dynamic segments when objects are tracked; with
+  // extra_camera_keypoints on top of the left image's budget, so the right
+  // image's budget grows with them (the segments' keypoints come out at about
+  // 1.5 times their share of the image: they win their cells,
+  // docs/objects.md §48).
   const cv::Mat favour =
       objects_ != nullptr ? ObjectStage::FavourMask(frame.panoptic, config_.classes) : cv::Mat();
+  const bool extra = !favour.empty() && config_.options.extra_camera_keypoints;
+  const double right_budget = !extra ? 1.0
+                                     : 1.0 + kFavouredKeypointsPerShare *
+                                                 cv::countNonZero(favour >= 128) /
+                                                 static_cast<double>(favour.total());
+  std::thread right_thread([&] {
+    orb_.Extract(right, cv::Mat(), &right_kps, &right_desc, &right_levels, right_budget);
+  });
   orb_.Extract(left, favour, &f.keypoints, &f.descriptors, &left_levels);
   right_thread.join();
   timings->push_back({"orb", sw.ElapsedMs()});
@@ -487,6 +520,22 @@ std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
                                                          right_desc,
                                                          left_levels,
                                                          right_levels);
+  if (extra) {
+    std::vector<double> half_window(orb_.pyramid().scale.size());
+    for (size_t l = 0; l < half_window.size(); ++l) {
+      half_window[l] =
+          (features::StereoMatchOptions().sad_half_window + 0.5) * orb_.pyramid().scale[l];
+    }
+    objects::RemeasureBesideMask(left,
+                                 right,
+                                 favour >= 128,
+                                 kStaticStereoBesideDynamicPx,
+                                 f.keypoints,
+                                 half_window,
+                                 config_.camera.bf(),
+                                 &st.u_right,
+                                 &st.depth);
+  }
   f.u_right = std::move(st.u_right);
   f.depth = std::move(st.depth);
   // Panoptic labels; a-priori dynamic classes leave the static pipeline.

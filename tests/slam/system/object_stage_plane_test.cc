@@ -4,6 +4,7 @@
 // default) against the engine matcher's own; with a drifting camera
 // estimate, the plane the planar joints get (the road as the current camera
 // sees it, ObjectStageOptions::camera_plane_frames) against the world fit.
+// And the keypoints the stage reads (not the camera's extra ones).
 #include <glog/logging.h>
 #include <gtest/gtest.h>
 
@@ -55,11 +56,15 @@ std::optional<PlaneError> RoadError(const std::optional<Eigen::Vector4d>& plane,
 // SlamSystem does (ORB with the favour mask, row stereo, labels).
 class RenderedFrames {
  public:
-  RenderedFrames(const std::string& scenario, int seed, int frames)
+  RenderedFrames(const std::string& scenario,
+                 int seed,
+                 int frames,
+                 bool extra_camera_keypoints = false)
       : scenario_(sim::MakeScenario(scenario, seed, frames)) {
     CHECK(scenario_.ok()) << scenario_.status();
     renderer_.emplace(scenario_->camera, sim::RenderOptions{});
     config_.camera = scenario_->camera;
+    config_.options.extra_camera_keypoints = extra_camera_keypoints;
     orb_.emplace(OrbOptionsFrom(config_.options));
   }
   const sim::Scenario& scenario() const { return *scenario_; }
@@ -120,6 +125,55 @@ class RenderedFrames {
   SessionConfig config_;
   std::optional<features::OrbExtractor> orb_;
 };
+
+// The camera's extra keypoints (OrbExtractor::kExtraKeypoint, those the
+// favoured ones' budget brought; docs/objects.md §48) are not the object
+// stage's: on the same frames it gives the same objects and planes with them
+// and without them.
+TEST(ObjectStageKeypoints, TheCamerasExtraKeypointsAreNotRead) {
+  const int kFrames = 8;
+  RenderedFrames frames("follow_braking", 1, kFrames, /*extra_camera_keypoints=*/true);
+  ObjectStage all(frames.config()), without(frames.config());
+  int extra = 0, tracked = 0;
+  for (int i = 0; i < kFrames; ++i) {
+    std::shared_ptr<map::FrameFeatures> features;
+    const SE3d camera_from_world = frames.scenario().WorldFromCamera(i).Inverse();
+    const ObjectStageInput in = frames.Frame(i, camera_from_world, &features);
+    map::FrameFeatures kept;
+    for (int k = 0; k < features->size(); ++k) {
+      if (features->keypoints[k].class_id == features::OrbExtractor::kExtraKeypoint) {
+        ++extra;
+        continue;
+      }
+      kept.keypoints.push_back(features->keypoints[k]);
+      kept.descriptors.push_back(features->descriptors.row(k));
+      kept.u_right.push_back(features->u_right[k]);
+      kept.depth.push_back(features->depth[k]);
+      kept.labels.push_back(features->labels[k]);
+      kept.is_static.push_back(features->is_static[k]);
+    }
+    const std::shared_ptr<map::FrameFeatures> kept_features = map::FinalizeFeatures(
+        std::move(kept), frames.scenario().camera.width, frames.scenario().camera.height);
+    ObjectStageInput in_kept = in;
+    in_kept.features = kept_features.get();
+    absl::StatusOr<ObjectStageOutput> a = all.Process(in);
+    absl::StatusOr<ObjectStageOutput> b = without.Process(in_kept);
+    ASSERT_TRUE(a.ok() && b.ok());
+    ASSERT_EQ(a->objects.size(), b->objects.size()) << i;
+    for (size_t o = 0; o < a->objects.size(); ++o) {
+      EXPECT_EQ(a->objects[o].id, b->objects[o].id);
+      EXPECT_EQ(a->objects[o].world_from_object.matrix(), b->objects[o].world_from_object.matrix())
+          << "frame " << i << " object " << a->objects[o].id;
+    }
+    tracked += static_cast<int>(a->objects.size());
+    ASSERT_EQ(a->cluster_events.size(), b->cluster_events.size());
+    for (size_t e = 0; e < a->cluster_events.size(); ++e) {
+      EXPECT_EQ(a->cluster_events[e].plane, b->cluster_events[e].plane);
+    }
+  }
+  EXPECT_GT(extra, 100 * kFrames);  // the frames had extra keypoints
+  EXPECT_GT(tracked, kFrames);      // and objects
+}
 
 TEST(ObjectStagePlane, MaskedPlaneStereoFitsTheLevelRoad) {
   // A lead car 15 m ahead in the camera's lane, parked cars on both sides.

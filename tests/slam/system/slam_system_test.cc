@@ -174,6 +174,7 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   config.options.object_ba_iterations = 3;
   config.options.parked_objects_static = false;  // not the default
   config.options.dense_keyframes = false;        // not the default
+  config.options.extra_camera_keypoints = true;  // not the default
   auto sys = SlamSystem::Create(config);
   ASSERT_TRUE(sys.ok());
   ASSERT_TRUE((*sys)->Process(SmallClip().frames[0]).ok());
@@ -185,6 +186,7 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   EXPECT_EQ((*loaded)->config().options.object_ba_iterations, 3);
   EXPECT_FALSE((*loaded)->config().options.parked_objects_static);
   EXPECT_FALSE((*loaded)->config().options.dense_keyframes);
+  EXPECT_TRUE((*loaded)->config().options.extra_camera_keypoints);
   std::remove(path.c_str());
 }
 
@@ -416,7 +418,22 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   uint32_t version = 0;
   std::memcpy(&version, &data[8], sizeof(version));
-  ASSERT_EQ(version, 13u);
+  ASSERT_EQ(version, 14u);
+  // Format 14 adds SlamOptions::extra_camera_keypoints, the byte after
+  // dense_keyframes; without it the file is a format-13 one.
+  ASSERT_EQ(data[dense_at + 1], '\0');
+  data.erase(dense_at + 1, 1);
+  {
+    std::string v13 = data;
+    version = 13;
+    std::memcpy(&v13[8], &version, sizeof(version));
+    const std::string path13 = TempPath("state_v13");
+    WriteBytes(path13, v13);
+    auto loaded13 = SlamSystem::Load(path13);
+    ASSERT_TRUE(loaded13.ok()) << loaded13.status();
+    EXPECT_FALSE((*loaded13)->config().options.extra_camera_keypoints);
+    std::remove(path13.c_str());
+  }
   // Without the object stage a format-13 file is a format-10 one (formats 11
   // to 13 only add to the object stage). Format 10's block ends with its
   // length, before the 8-byte trailer.
