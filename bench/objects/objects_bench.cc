@@ -27,6 +27,7 @@
 //                 [--engine-scenario NAME] [--engine-frames N] [--engine-seed S]
 //                 [--engine-object-ba W]   (object_ba_window_frames; default: the option's)
 //                 [--engine-objects-split N]
+//                 [--engine-extra-keypoints] (SlamOptions::extra_camera_keypoints on)
 #include <time.h>
 
 #include <algorithm>
@@ -260,14 +261,17 @@ absl::StatusOr<EngineStream> RenderStream(const std::string& scenario_name,
   return stream;
 }
 
-// The whole engine (default SlamOptions) on `stream`, with the mapping in
+// The whole engine (default SlamOptions, but for the objects' BA window and
+// extra_camera_keypoints) on `stream`, with the mapping in
 // Process() (synchronous, as the tests run it) or in its own thread
 // (background, as the service runs it).
 absl::StatusOr<EngineResult> RunEngine(const EngineStream& stream,
                                        int object_ba_window,
+                                       bool extra_camera_keypoints,
                                        twist::MappingMode mapping) {
   twist::SessionConfig config;
   config.camera = stream.camera;
+  config.options.extra_camera_keypoints = extra_camera_keypoints;
   if (object_ba_window >= 0) config.options.object_ba_window_frames = object_ba_window;
   config.options.mapping_mode = mapping;
   auto sys = twist::SlamSystem::Create(config);
@@ -312,6 +316,7 @@ int main(int argc, char** argv) {
   int engine_frames = 60;
   uint64_t engine_seed = 1;
   int engine_object_ba = -1;  // -1: SlamOptions default
+  bool extra_keypoints = false;
   int split = 5;              // tracked objects per frame (issue #5's "up to 5")
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -332,6 +337,8 @@ int main(int argc, char** argv) {
       engine_object_ba = std::atoi(argv[++i]);
     } else if (a == "--engine-objects-split" && has_value) {
       split = std::atoi(argv[++i]);
+    } else if (a == "--engine-extra-keypoints") {
+      extra_keypoints = true;
     } else if (a == "--engine-seed" && has_value) {
       engine_seed = static_cast<uint64_t>(std::atoll(argv[++i]));
     } else {
@@ -339,7 +346,8 @@ int main(int argc, char** argv) {
           stderr,
           "usage: objects_bench [--frames N] [--window W] [--ba-iterations K] [--json FILE]\n"
           "                     [--engine-scenario NAME] [--engine-frames N] [--engine-seed S]\n"
-          "                     [--engine-object-ba W] [--engine-objects-split N]\n");
+          "                     [--engine-object-ba W] [--engine-objects-split N]\n"
+          "                     [--engine-extra-keypoints]\n");
       return 2;
     }
   }
@@ -424,7 +432,8 @@ int main(int argc, char** argv) {
        {std::pair{twist::MappingMode::kSynchronous, "synchronous"},
         std::pair{twist::MappingMode::kBackground, "background"}}) {
     if (engine_frames <= 0) break;
-    const absl::StatusOr<EngineResult> e = RunEngine(*stream, engine_object_ba, mapping);
+    const absl::StatusOr<EngineResult> e =
+        RunEngine(*stream, engine_object_ba, extra_keypoints, mapping);
     if (!e.ok()) {
       std::fprintf(stderr, "objects_bench: engine run: %s\n", e.status().ToString().c_str());
       return 1;
@@ -432,7 +441,7 @@ int main(int argc, char** argv) {
     const double mean_total = Mean(e->total_ms), mean_tracked = Mean(e->num_tracked);
     const double median = Percentile(e->total_ms, 0.5);
     std::printf(
-        "engine on '%s', %s mapping (%d frames, object BA window %d): stream %.1f frames/s "
+        "engine on '%s', %s mapping (%d frames, object BA window %d%s): stream %.1f frames/s "
         "(wall, frames back to back); total %.1f ms/frame (p95 %.1f, mean "
         "%.1f) "
         "= %.1f frames/s at the median, %.1f at the mean; objects stage %.1f ms (p95 %.1f), of "
@@ -442,6 +451,7 @@ int main(int argc, char** argv) {
         mode_name,
         e->frames,
         e->object_ba_window,
+        extra_keypoints ? ", extra camera keypoints" : "",
         e->stream_s > 0.0 ? e->frames / e->stream_s : 0.0,
         median,
         Percentile(e->total_ms, 0.95),
@@ -481,6 +491,7 @@ int main(int argc, char** argv) {
         many_ms.empty() ? 0.0 : 1000.0 / Mean(many_ms));
     json << ", \"engine_" << mode_name << "\": {\"scenario\": \"" << engine_scenario
          << "\", \"frames\": " << e->frames
+         << ", \"extra_camera_keypoints\": " << (extra_keypoints ? "true" : "false")
          << ", \"stream_frames_per_s\": " << (e->stream_s > 0.0 ? e->frames / e->stream_s : 0.0)
          << ", \"total_ms\": " << Stats(e->total_ms) << ", \"mean_total_ms\": " << mean_total
          << ", \"objects_ms\": " << Stats(e->objects_ms)
