@@ -323,9 +323,9 @@ void OrbExtractor::ExtractLevel(const cv::Mat& img,
 
   std::vector<cv::KeyPoint> kept = SpreadCorners(cand, target, img.cols, img.rows);
   // With favoured_on_top, favoured corners come on top of the budget: those
-  // that won their nodes in the spread over all corners are kept, and the other corners are
-  // spread again without them, over the whole budget (an object's keypoints
-  // do not take the camera's).
+  // that won their nodes in the spread over all corners are kept, and the
+  // other corners are spread again without them, over the whole budget (an
+  // object's keypoints do not take the camera's).
   if (options_.favoured_on_top && std::any_of(cand.begin(), cand.end(), [](const cv::KeyPoint& kp) {
         return kp.response >= kFavoured;
       })) {

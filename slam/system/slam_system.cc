@@ -69,16 +69,15 @@ constexpr uint32_t kFormatVersion = 14;
 constexpr int kDenseLocalBaKeyFrames = 8;
 // With SlamOptions::extra_camera_keypoints the right image's budget grows by
 // this many times the favoured (dynamic) share of the left image: favoured
-// keypoints are extra to the left budget,
-// and they win their cells, so they number about 1.5 times their area share
-// (follow_braking: 1.44 at level 0, 1.6 over all levels).
+// keypoints are extra to the left budget, and they win their cells, so they
+// number about 1.5 times their area share (follow_braking: 1.44 at level 0,
+// 1.6 over all levels).
 constexpr double kFavouredKeypointsPerShare = 1.5;
 // Static keypoints this close (px) to a dynamic segment have their stereo
 // measured again on static pixels only (objects::RemeasureBesideMask) with
 // SlamOptions::extra_camera_keypoints: with the favoured keypoints on top of
-// the budget there are more of them beside
-// the cars, and their blocks straddling a car drifted the camera
-// (docs/objects.md §48).
+// the budget there are more of them beside the cars, and their blocks
+// straddling a car drifted the camera (docs/objects.md §47-48).
 constexpr int kStaticStereoBesideDynamicPx = 8;
 // ObjectStageOptions::plane_dynamic_margin_px with extra_camera_keypoints:
 // the extra road keypoints beside the cars slowed the planar cars down

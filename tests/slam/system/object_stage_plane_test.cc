@@ -53,7 +53,10 @@ std::optional<PlaneError> RoadError(const std::optional<Eigen::Vector4d>& plane,
 }
 
 // Renders frames of a scenario and builds the object stage's input as
-// SlamSystem does (ORB with the favour mask, row stereo, labels).
+// SlamSystem does (ORB with the favour mask, row stereo, labels); with
+// extra_camera_keypoints, without the engine's larger right-image budget
+// and its re-measured stereo beside the segments (the stage's own input
+// is what the tests here are about).
 class RenderedFrames {
  public:
   RenderedFrames(const std::string& scenario,
