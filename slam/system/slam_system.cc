@@ -78,7 +78,7 @@ constexpr double kFavouredKeypointsPerShare = 1.5;
 // SlamOptions::extra_camera_keypoints: with the favoured keypoints on top of
 // the budget there are more of them beside the cars, and their blocks
 // straddling a car drifted the camera (docs/objects.md §47-48).
-constexpr int kStaticStereoBesideDynamicPx = 8;
+constexpr int kStaticStereoBesideDynamicPx = 16;
 // ObjectStageOptions::plane_dynamic_margin_px with extra_camera_keypoints:
 // the extra road keypoints beside the cars slowed the planar cars down
 // (docs/objects.md §47).

@@ -321,7 +321,7 @@ TEST(MaskedStereo, RenderedRoadAgainstExactDepth) {
 
 // The static keypoints beside the cars and people of `follow_braking`
 // (seed 1, frames 0-90 step 15; the engine's matcher, then
-// RemeasureBesideMask with the engine's 8 px), against the rendered depth
+// RemeasureBesideMask with an 8 px margin), against the rendered depth
 // under the keypoint. Measured: 814 keypoints beside a segment, 691 of them
 // with a depth inside 60 m changed, 115 of those dropped; |depth error|
 // median 4.46 % -> 1.37 %, share over 5 % 46 % -> 30 %.
