@@ -45,6 +45,14 @@ struct StereoMatchOptions {
   int gauss_newton_iterations = 5;
 };
 
+// Half size, in level-0 pixels, of the block the matcher refines a match
+// with on a pyramid level of scale `level_scale` (sad_half_window + 0.5 level
+// pixels).
+inline double StereoBlockHalfPx(double level_scale,
+                                const StereoMatchOptions& options = StereoMatchOptions()) {
+  return (options.sad_half_window + 0.5) * level_scale;
+}
+
 struct StereoMatchResult {
   std::vector<float> u_right;  // per left keypoint, -1 when unmatched
   std::vector<float> depth;    // per left keypoint (m), -1 when unmatched

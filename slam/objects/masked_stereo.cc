@@ -186,7 +186,7 @@ int RemeasureBesideMask(const cv::Mat& left,
   if (margin_px <= 0 || cv::countNonZero(dynamic) == 0) return 0;
   cv::Mat still = dynamic == 0, near;
   const int side = 2 * margin_px + 1;
-  cv::dilate(dynamic != 0, near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side)));
+  cv::dilate(dynamic, near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side)));
   int measured = 0;
   for (size_t i = 0; i < keypoints.size(); ++i) {
     if ((*u_right)[i] < 0.0f) continue;

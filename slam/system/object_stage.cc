@@ -245,9 +245,10 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
     if (options_.plane_dynamic_margin_px > 0 && !in.panoptic.empty()) {
       if (near_dynamic.empty()) {
         const int side = 2 * options_.plane_dynamic_margin_px + 1;
-        cv::dilate(FavourMask(in.panoptic, config_.classes) >= 128,
-                   near_dynamic,
-                   cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side)));
+        cv::dilate(
+            in.dynamic.empty() ? FavourMask(in.panoptic, config_.classes) >= 128 : in.dynamic,
+            near_dynamic,
+            cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side)));
       }
       const int x = std::clamp(cvRound(f.keypoints[i].pt.x), 0, near_dynamic.cols - 1);
       const int y = std::clamp(cvRound(f.keypoints[i].pt.y), 0, near_dynamic.rows - 1);
@@ -351,13 +352,12 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
   of.keypoints.u_right.reserve(n);
   // The stereo matcher's block on each keypoint's pyramid level, in level-0
   // pixels: the tracker trusts a depth only when the block lies on the object.
-  const double stereo_half = features::StereoMatchOptions().sad_half_window + 0.5;
   of.keypoints.stereo_support_px.reserve(n);
   for (int i = 0; i < n; ++i) {
     of.keypoints.uv.emplace_back(f.keypoints[i].pt.x, f.keypoints[i].pt.y);
     of.keypoints.u_right.push_back(f.u_right[i]);
     of.keypoints.stereo_support_px.push_back(
-        stereo_half * std::pow(config_.options.scale_factor, f.keypoints[i].octave));
+        features::StereoBlockHalfPx(std::pow(config_.options.scale_factor, f.keypoints[i].octave)));
   }
   for (size_t d = 0; d < dets.size(); ++d) {
     if (dets[d].label.instance_id == 0) continue;

@@ -109,6 +109,9 @@ struct ObjectStageInput {
   cv::Mat right;                                 // optional CV_8UC1 (object depths from the mask)
   cv::Mat panoptic;                              // CV_16UC1 / CV_32SC1, class * 1000 + instance
   cv::Mat flow;                                  // optional CV_32FC2, previous left -> this left
+  // Optional CV_8UC1: FavourMask(panoptic) >= 128 (the dynamic segments),
+  // when the caller has it already; empty: built from `panoptic` when needed.
+  cv::Mat dynamic;
   const map::FrameFeatures* features = nullptr;  // the frame's stereo keypoints
   geometry::SE3d camera_from_world;              // from static tracking
 };

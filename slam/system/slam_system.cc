@@ -426,10 +426,12 @@ class SlamSystemImpl final : public SlamSystem {
  private:
   absl::Status ValidateInput(const StereoFrame& frame) const;
   // `left` and `right`: the frame's images in gray (the object stage gets the
-  // same ones).
+  // same ones). `*dynamic` receives the dynamic segments' mask when the
+  // extraction built it (extra_camera_keypoints), else it is left empty.
   std::shared_ptr<map::FrameFeatures> ExtractFeatures(const StereoFrame& frame,
                                                       const cv::Mat& left,
                                                       const cv::Mat& right,
+                                                      cv::Mat* dynamic,
                                                       std::vector<StageTiming>* timings) const;
 
   SessionConfig config_;
@@ -486,6 +488,7 @@ std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
     const StereoFrame& frame,
     const cv::Mat& left,
     const cv::Mat& right,
+    cv::Mat* dynamic,
     std::vector<StageTiming>* timings) const {
   Stopwatch sw;
   map::FrameFeatures f;
@@ -500,10 +503,11 @@ std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
   const cv::Mat favour =
       objects_ != nullptr ? ObjectStage::FavourMask(frame.panoptic, config_.classes) : cv::Mat();
   const bool extra = !favour.empty() && config_.options.extra_camera_keypoints;
-  const double right_budget = !extra ? 1.0
-                                     : 1.0 + kFavouredKeypointsPerShare *
-                                                 cv::countNonZero(favour >= 128) /
-                                                 static_cast<double>(favour.total());
+  if (extra) *dynamic = favour >= 128;
+  const double right_budget = !extra
+                                  ? 1.0
+                                  : 1.0 + kFavouredKeypointsPerShare * cv::countNonZero(*dynamic) /
+                                              static_cast<double>(favour.total());
   std::thread right_thread([&] {
     orb_.Extract(right, cv::Mat(), &right_kps, &right_desc, &right_levels, right_budget);
   });
@@ -522,12 +526,11 @@ std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
   if (extra) {
     std::vector<double> half_window(orb_.pyramid().scale.size());
     for (size_t l = 0; l < half_window.size(); ++l) {
-      half_window[l] =
-          (features::StereoMatchOptions().sad_half_window + 0.5) * orb_.pyramid().scale[l];
+      half_window[l] = features::StereoBlockHalfPx(orb_.pyramid().scale[l]);
     }
     objects::RemeasureBesideMask(left,
                                  right,
-                                 favour >= 128,
+                                 *dynamic,
                                  kStaticStereoBesideDynamicPx,
                                  f.keypoints,
                                  half_window,
@@ -572,7 +575,8 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
   frame.timestamp_ns = input.timestamp_ns;
   const cv::Mat left_gray = ToGray(input.left);
   const cv::Mat right_gray = ToGray(input.right);
-  frame.features = ExtractFeatures(input, left_gray, right_gray, &result.timings);
+  cv::Mat dynamic;  // the dynamic segments, when the extraction built them
+  frame.features = ExtractFeatures(input, left_gray, right_gray, &dynamic, &result.timings);
   frame.ResetMatches();
 
   if (frames_processed_ == 1 && input.timestamp_ns > first_timestamp_ns_) {
@@ -664,6 +668,7 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
     oi.right = right_gray;
     oi.panoptic = input.panoptic;
     oi.flow = input.flow;
+    oi.dynamic = dynamic;
     oi.features = frame.features.get();
     oi.camera_from_world = frame.camera_from_world;
     // The input was validated above: a failure here is a bug, not bad input,

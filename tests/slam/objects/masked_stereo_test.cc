@@ -236,7 +236,7 @@ TEST(MaskedStereo, RenderedCarsAgainstExactDepth) {
       if (!(z_true >= 15.0 && z_true <= 35.0)) continue;
       const cv::Mat mask =
           semantic::SegmentMask(r.panoptic, semantic::PanopticLabel{label / 1000, label % 1000});
-      const double half = (so.sad_half_window + 0.5) * orb.pyramid().scale[kl[k].octave];
+      const double half = features::StereoBlockHalfPx(orb.pyramid().scale[kl[k].octave], so);
       const double d_raw = kl[k].pt.x - st.u_right[k];
       raw.push_back(cam.bf() / d_raw / z_true - 1.0);
       const auto d = MaskedDisparity(
@@ -331,7 +331,7 @@ TEST(MaskedStereo, RenderedStaticKeypointsBesideTheCars) {
   const features::StereoMatchOptions so;
   std::vector<double> half(scene.orb().pyramid().scale.size());
   for (size_t l = 0; l < half.size(); ++l) {
-    half[l] = (so.sad_half_window + 0.5) * scene.orb().pyramid().scale[l];
+    half[l] = features::StereoBlockHalfPx(scene.orb().pyramid().scale[l], so);
   }
   std::vector<double> raw, measured;
   int beside = 0, dropped = 0;
