@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <functional>
 #include <random>
 #include <set>
 
@@ -25,12 +26,19 @@ class MapperTest : public ::testing::Test {
 
   // A keyframe at frame k, its keypoints matched to the points of previous
   // keyframes through the ground-truth identities (as tracking would).
-  map::KeyFrame* AddKeyFrame(int k, std::map<int, int64_t>* world_to_point) {
+  // `edit`, when given, changes the observed features before they are used.
+  map::KeyFrame* AddKeyFrame(
+      int k,
+      std::map<int, int64_t>* world_to_point,
+      const std::function<void(const testing::FrameTruth&, map::FrameFeatures*)>& edit = nullptr) {
     map::Frame f;
     f.id = k;
     f.timestamp_ns = k;
     testing::FrameTruth truth;
-    f.features = Observe(world_, cam_, pyramid_, TruePose(k).Inverse(), 50 + k, 0.3, &truth);
+    std::shared_ptr<map::FrameFeatures> features =
+        Observe(world_, cam_, pyramid_, TruePose(k).Inverse(), 50 + k, 0.3, &truth);
+    if (edit) edit(truth, features.get());
+    f.features = std::move(features);
     f.camera_from_world = TruePose(k).Inverse();
     f.ResetMatches();
     {
@@ -110,6 +118,54 @@ TEST_F(MapperTest, LocalBundleAdjustmentReducesPoseAndPointErrors) {
   EXPECT_LT(pose_after, 0.2 * pose_before) << pose_before << " -> " << pose_after;
   EXPECT_LT(pose_after, 0.01);
   EXPECT_LT(point_after, 0.5 * point_before) << point_before << " -> " << point_after;
+}
+
+// The local BA takes a close point's u_right from every keyframe that
+// measured one, also where that keyframe's own disparity reads beyond ThDepth:
+// choosing observations by their own noisy disparity keeps, for a point near
+// the threshold, only those whose disparity came out too large (docs/math.md
+// §16). Here frame 1 reads a point 1.5 m inside the threshold as 1.5 m
+// beyond it; its stereo must pull the point out.
+TEST_F(MapperTest, AClosePointKeepsTheStereoOfAnObservationThatReadsFar) {
+  const double threshold = MapperOptions{}.close_depth_baselines * cam_.baseline;
+  const geometry::SE3d c1_from_world = TruePose(1).Inverse();
+  int target = -1;
+  for (size_t i = 0; i < world_.points.size() && target < 0; ++i) {
+    const Eigen::Vector3d pc = c1_from_world * world_.points[i];
+    if (std::abs(pc.z() - (threshold - 1.5)) < 0.3 && std::abs(pc.x()) < 5.0) {
+      target = static_cast<int>(i);
+    }
+  }
+  ASSERT_GE(target, 0);
+  std::map<int, int64_t> w2p;
+  std::vector<int64_t> kfs{AddKeyFrame(0, &w2p)->id};
+  bool edited = false;
+  kfs.push_back(AddKeyFrame(1, &w2p, [&](const testing::FrameTruth& truth, map::FrameFeatures* f) {
+                  for (size_t i = 0; i < truth.point_index.size(); ++i) {
+                    if (truth.point_index[i] != target || f->u_right[i] < 0.f) continue;
+                    const double far = (c1_from_world * world_.points[target]).z() + 3.0;
+                    f->u_right[i] = static_cast<float>(f->keypoints[i].pt.x - cam_.bf() / far);
+                    f->depth[i] = static_cast<float>(far);
+                    edited = true;
+                  }
+                })->id);
+  ASSERT_TRUE(edited);
+  ASSERT_TRUE(w2p.count(target));
+  auto depth_in_frame_1 = [&]() {
+    std::lock_guard<std::mutex> lock(map_.mutex());
+    return (c1_from_world * map_.GoodPoint(w2p.at(target))->p_in_world).z();
+  };
+  const double before = depth_in_frame_1();
+  ASSERT_LT(before, threshold);
+  {
+    std::lock_guard<std::mutex> lock(map_.mutex());
+    for (int64_t id : kfs) map_.UpdateConnections(map_.keyframe(id));
+  }
+  MappingTimings t;
+  ASSERT_EQ(mapper_.LocalBundleAdjustment(kfs.back(), &map_, nullptr, &t), 1);
+  // Both stereo observations weigh in: the point moves about half way out
+  // (+1.5 m; +0.45 m with the observation's own depth deciding).
+  EXPECT_GT(depth_in_frame_1(), before + 1.0) << "threshold " << threshold;
 }
 
 TEST_F(MapperTest, TriangulatesFarPointsBetweenKeyFrames) {
