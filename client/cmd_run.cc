@@ -235,6 +235,8 @@ bool ReadRunConfig(const std::string& path, RunConfig* config, std::string* erro
           s.dense_keyframes = v != 0;
         else if (k == "extra_camera_keypoints")
           s.extra_camera_keypoints = v != 0;
+        else if (k == "stereo_by_point_depth")
+          s.stereo_by_point_depth = v != 0;
         else if (k == "seed")
           s.seed = static_cast<uint64_t>(v);
         else {

@@ -342,6 +342,7 @@ absl::Status ApplyOptions(const pb::SlamOptions& in, SlamOptions* options) {
   if (in.has_extra_camera_keypoints()) {
     options->extra_camera_keypoints = in.extra_camera_keypoints();
   }
+  if (in.has_stereo_by_point_depth()) options->stereo_by_point_depth = in.stereo_by_point_depth();
   return absl::OkStatus();
 }
 
@@ -366,6 +367,7 @@ void ToProto(const SlamOptions& options, pb::SlamOptions* out) {
   out->set_parked_objects_static(options.parked_objects_static);
   out->set_dense_keyframes(options.dense_keyframes);
   out->set_extra_camera_keypoints(options.extra_camera_keypoints);
+  out->set_stereo_by_point_depth(options.stereo_by_point_depth);
 }
 
 void ToProto(const geometry::StereoCamera& camera, pb::StereoCalibration* out) {

@@ -195,6 +195,8 @@ absl::Status ReadSlamOptions(const cv::FileNode& node, SlamOptions* o) {
       o->dense_keyframes = v != 0;
     else if (key == "extra_camera_keypoints")
       o->extra_camera_keypoints = v != 0;
+    else if (key == "stereo_by_point_depth")
+      o->stereo_by_point_depth = v != 0;
     else if (key == "seed")
       o->seed = static_cast<uint64_t>(v);
     else

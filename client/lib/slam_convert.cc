@@ -79,6 +79,7 @@ pb::SessionConfig SessionConfigToProto(const SessionConfig& config) {
   po->set_parked_objects_static(o.parked_objects_static);
   po->set_dense_keyframes(o.dense_keyframes);
   po->set_extra_camera_keypoints(o.extra_camera_keypoints);
+  po->set_stereo_by_point_depth(o.stereo_by_point_depth);
   return out;
 }
 

@@ -537,14 +537,13 @@ int LocalMapper::LocalBundleAdjustment(int64_t kf_id,
         // KITTI 06 f0-50 (sync): ATE 0.095 -> 0.051 m, RPE_t 0.0134 -> 0.0125.
         // Trade-off: on rendered data, whose far disparities are cleaner, the
         // far u_right helped (driving 60 frames ATE 0.010 -> 0.022 m).
-        //
-        // "Close" is the point's depth in this keyframe as the map holds it,
-        // not the observation's own stereo depth: choosing an observation by
-        // its own noisy disparity keeps, for a point near the threshold, only
-        // the observations whose disparity came out too large, and its
-        // depth (and the trajectory's scale) comes out short (docs/math.md
-        // §16: rendered `static_street` camera ATE 0.037 -> 0.027 m).
-        const bool close = k->features->depth[idx] > 0.f && point_depth <= close_depth;
+        // "Close" by the point's depth in this keyframe as the map holds it
+        // (MapperOptions::stereo_by_point_depth) or by the observation's own
+        // stereo depth, which for a point near the threshold keeps only the
+        // observations whose disparity came out too large (docs/math.md §16).
+        const double depth_tested =
+            options_.stereo_by_point_depth ? point_depth : k->features->depth[idx];
+        const bool close = k->features->depth[idx] > 0.f && depth_tested <= close_depth;
         const double u_right = close ? k->features->u_right[idx] : -1.0;
         obs.push_back({oid,
                        pid,

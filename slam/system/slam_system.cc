@@ -64,7 +64,8 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // ObjectTrackerOptions::patch_refresh_view_change_deg on, each patch is taken
 // again at the point's next match.
 // 14: + SlamOptions::extra_camera_keypoints. Older files load with it off.
-constexpr uint32_t kFormatVersion = 14;
+// 15: + SlamOptions::stereo_by_point_depth. Older files load with it off.
+constexpr uint32_t kFormatVersion = 15;
 // Covisible keyframes in the local BA with dense keyframes (SlamOptions).
 constexpr int kDenseLocalBaKeyFrames = 8;
 // With SlamOptions::extra_camera_keypoints the right image's budget grows by
@@ -96,6 +97,7 @@ mapping::MapperOptions MapperOptionsFrom(const SlamOptions& o) {
   m.local_ba_iterations = o.local_ba_iterations;
   m.num_threads = o.num_threads;
   m.max_local_ba_keyframes = o.dense_keyframes ? kDenseLocalBaKeyFrames : 0;
+  m.stereo_by_point_depth = o.stereo_by_point_depth;
   return m;
 }
 
@@ -213,6 +215,7 @@ void WriteConfig(const SessionConfig& c, system_io::BinaryWriter* w) {
   w->Pod<uint8_t>(o.parked_objects_static);
   w->Pod<uint8_t>(o.dense_keyframes);
   w->Pod<uint8_t>(o.extra_camera_keypoints);
+  w->Pod<uint8_t>(o.stereo_by_point_depth);
 }
 
 absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r, uint32_t version) {
@@ -251,6 +254,7 @@ absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r, uint32_t ve
   }
   o.dense_keyframes = version >= 9 && r->Pod<uint8_t>() != 0;
   o.extra_camera_keypoints = version >= 14 && r->Pod<uint8_t>() != 0;
+  o.stereo_by_point_depth = version >= 15 && r->Pod<uint8_t>() != 0;
   if (!r->ok()) return absl::DataLossError("state file truncated in the configuration");
   absl::StatusOr<joints::ClassTable> table = joints::ClassTable::FromText(classes);
   if (!table.ok()) {

@@ -175,6 +175,7 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   config.options.parked_objects_static = false;  // not the default
   config.options.dense_keyframes = false;        // not the default
   config.options.extra_camera_keypoints = true;  // not the default
+  config.options.stereo_by_point_depth = true;   // not the default
   auto sys = SlamSystem::Create(config);
   ASSERT_TRUE(sys.ok());
   ASSERT_TRUE((*sys)->Process(SmallClip().frames[0]).ok());
@@ -187,6 +188,7 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   EXPECT_FALSE((*loaded)->config().options.parked_objects_static);
   EXPECT_FALSE((*loaded)->config().options.dense_keyframes);
   EXPECT_TRUE((*loaded)->config().options.extra_camera_keypoints);
+  EXPECT_TRUE((*loaded)->config().options.stereo_by_point_depth);
   std::remove(path.c_str());
 }
 
@@ -418,22 +420,27 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   uint32_t version = 0;
   std::memcpy(&version, &data[8], sizeof(version));
-  ASSERT_EQ(version, 14u);
+  ASSERT_EQ(version, 15u);
+  // `bytes` declared as format `as` loads; returns its options.
+  auto options_as = [](std::string bytes, uint32_t as) {
+    std::memcpy(&bytes[8], &as, sizeof(as));
+    const std::string older = TempPath("state_older");
+    WriteBytes(older, bytes);
+    auto loaded = SlamSystem::Load(older);
+    std::remove(older.c_str());
+    EXPECT_TRUE(loaded.ok()) << loaded.status();
+    return loaded.ok() ? (*loaded)->config().options : SlamOptions();
+  };
+  // Format 15 adds SlamOptions::stereo_by_point_depth, the byte after
+  // extra_camera_keypoints; without it the file is a format-14 one.
+  ASSERT_EQ(data[dense_at + 2], '\0');
+  data.erase(dense_at + 2, 1);
+  EXPECT_FALSE(options_as(data, 14).stereo_by_point_depth);
   // Format 14 adds SlamOptions::extra_camera_keypoints, the byte after
   // dense_keyframes; without it the file is a format-13 one.
   ASSERT_EQ(data[dense_at + 1], '\0');
   data.erase(dense_at + 1, 1);
-  {
-    std::string v13 = data;
-    version = 13;
-    std::memcpy(&v13[8], &version, sizeof(version));
-    const std::string path13 = TempPath("state_v13");
-    WriteBytes(path13, v13);
-    auto loaded13 = SlamSystem::Load(path13);
-    ASSERT_TRUE(loaded13.ok()) << loaded13.status();
-    EXPECT_FALSE((*loaded13)->config().options.extra_camera_keypoints);
-    std::remove(path13.c_str());
-  }
+  EXPECT_FALSE(options_as(data, 13).extra_camera_keypoints);
   // Without the object stage a format-13 file is a format-10 one (formats 11
   // to 13 only add to the object stage). Format 10's block ends with its
   // length, before the 8-byte trailer.
