@@ -29,8 +29,8 @@ struct MapperOptions {
   double close_depth_baselines = 40.0;  // ThDepth: stereo points created up to this
   // Local BA: an observation's u_right is used when the point is close in
   // that keyframe as the map holds it (true) or when the observation's own
-  // stereo depth is close (false, ORB-SLAM2's ThDepth test applied per
-  // observation). The latter keeps, for a point near ThDepth, only the
+  // stereo depth is close (false: the ThDepth test of new stereo points
+  // applied to each observation). The latter keeps, for a point near ThDepth, only the
   // observations whose disparity came out too large, and the scale comes
   // out short: rendered static_street 1-3 camera ATE 0.0369 -> 0.0268 m with
   // true, but KITTI 06 f0-50 ATE 0.067 -> 0.081 m, whose path is already too
