@@ -5,6 +5,7 @@
 //
 //   engine_bench [--data DIR] [--seq 06] [--mode sync|background|both]
 //                [--features N] [--repeat R] [--json FILE]
+//                [--stereo-by-point-depth 0|1]
 #include <sys/resource.h>
 #include <sys/stat.h>
 
@@ -136,6 +137,7 @@ int main(int argc, char** argv) {
   std::string data = std::string(TWIST_SOURCE_DIR) + "/../shared/data/kitti_odometry_06_f0-50";
   std::string seq_name = "06", mode = "both", json_path;
   int num_features = 2000, repeat = 1;
+  bool stereo_by_point_depth = false;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() -> std::string {
@@ -157,6 +159,8 @@ int main(int argc, char** argv) {
       repeat = std::stoi(next());
     else if (a == "--json")
       json_path = next();
+    else if (a == "--stereo-by-point-depth")
+      stereo_by_point_depth = std::stoi(next()) != 0;
     else {
       std::fprintf(stderr, "engine_bench: unknown argument %s\n", a.c_str());
       return 2;
@@ -188,6 +192,7 @@ int main(int argc, char** argv) {
   twist::SessionConfig config;
   config.camera = (*seq)->camera();
   config.options.num_features = num_features;
+  config.options.stereo_by_point_depth = stereo_by_point_depth;
   std::vector<RunResult> runs;
   for (int rep = 0; rep < repeat; ++rep) {
     if (mode == "sync" || mode == "both") {
