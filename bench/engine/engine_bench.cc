@@ -208,15 +208,17 @@ int main(int argc, char** argv) {
 
   const char* kStages[] = {
       "orb", "stereo", "track", "keyframe", "tracking_latency", "mapping", "ba", "total"};
-  std::printf("engine_bench: %s seq %s, %zu frames %dx%d, %d features\n",
+  std::printf("engine_bench: %s seq %s, %zu frames %dx%d, %d features%s\n",
               data.c_str(),
               seq_name.c_str(),
               frames.size(),
               config.camera.width,
               config.camera.height,
-              num_features);
+              num_features,
+              stereo_by_point_depth ? ", stereo by point depth" : "");
   std::ostringstream json;
   json << "{\"frames\": " << frames.size() << ", \"features\": " << num_features
+       << ", \"stereo_by_point_depth\": " << (stereo_by_point_depth ? "true" : "false")
        << ", \"peak_rss_mb\": " << peak_kb / 1024.0 << ", \"runs\": [";
   for (size_t k = 0; k < runs.size(); ++k) {
     const RunResult& r = runs[k];
