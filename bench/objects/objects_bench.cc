@@ -27,7 +27,8 @@
 //                 [--engine-scenario NAME] [--engine-frames N] [--engine-seed S]
 //                 [--engine-object-ba W]   (object_ba_window_frames; default: the option's)
 //                 [--engine-objects-split N]
-//                 [--engine-extra-keypoints] (SlamOptions::extra_camera_keypoints on)
+//                 [--engine-extra-keypoints 0|1] (SlamOptions::extra_camera_keypoints;
+//                                 default: the option's)
 #include <time.h>
 
 #include <algorithm>
@@ -316,7 +317,7 @@ int main(int argc, char** argv) {
   int engine_frames = 60;
   uint64_t engine_seed = 1;
   int engine_object_ba = -1;  // -1: SlamOptions default
-  bool extra_keypoints = false;
+  bool extra_keypoints = twist::SlamOptions().extra_camera_keypoints;
   int split = 5;              // tracked objects per frame (issue #5's "up to 5")
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -337,8 +338,8 @@ int main(int argc, char** argv) {
       engine_object_ba = std::atoi(argv[++i]);
     } else if (a == "--engine-objects-split" && has_value) {
       split = std::atoi(argv[++i]);
-    } else if (a == "--engine-extra-keypoints") {
-      extra_keypoints = true;
+    } else if (a == "--engine-extra-keypoints" && has_value) {
+      extra_keypoints = std::atoi(argv[++i]) != 0;
     } else if (a == "--engine-seed" && has_value) {
       engine_seed = static_cast<uint64_t>(std::atoll(argv[++i]));
     } else {
@@ -347,7 +348,7 @@ int main(int argc, char** argv) {
           "usage: objects_bench [--frames N] [--window W] [--ba-iterations K] [--json FILE]\n"
           "                     [--engine-scenario NAME] [--engine-frames N] [--engine-seed S]\n"
           "                     [--engine-object-ba W] [--engine-objects-split N]\n"
-          "                     [--engine-extra-keypoints]\n");
+          "                     [--engine-extra-keypoints 0|1]\n");
       return 2;
     }
   }
@@ -451,7 +452,7 @@ int main(int argc, char** argv) {
         mode_name,
         e->frames,
         e->object_ba_window,
-        extra_keypoints ? ", extra camera keypoints" : "",
+        extra_keypoints ? ", extra camera keypoints" : ", no extra camera keypoints",
         e->stream_s > 0.0 ? e->frames / e->stream_s : 0.0,
         median,
         Percentile(e->total_ms, 0.95),

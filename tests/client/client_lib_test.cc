@@ -63,7 +63,7 @@ TEST(SlamConvert, SessionConfigSurvivesTheServerSetup) {
   config.options.object_ba_iterations = 3;
   config.options.parked_objects_static = false;  // not the default
   config.options.dense_keyframes = false;         // not the default
-  config.options.extra_camera_keypoints = true;   // not the default
+  config.options.extra_camera_keypoints = false;  // not the default
   config.options.stereo_by_point_depth = true;    // not the default
   const pb::SessionConfig wire = SessionConfigToProto(config);
   pb::CreateSessionRequest request;
@@ -82,7 +82,7 @@ TEST(SlamConvert, SessionConfigSurvivesTheServerSetup) {
   EXPECT_EQ(setup->config.options.object_ba_iterations, 3);
   EXPECT_FALSE(setup->config.options.parked_objects_static);
   EXPECT_FALSE(setup->config.options.dense_keyframes);
-  EXPECT_TRUE(setup->config.options.extra_camera_keypoints);
+  EXPECT_FALSE(setup->config.options.extra_camera_keypoints);
   EXPECT_TRUE(setup->config.options.stereo_by_point_depth);
   EXPECT_EQ(setup->config.classes.ToText(), config.classes.ToText());
   EXPECT_EQ(setup->policy.queue_capacity(), 4);

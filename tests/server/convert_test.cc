@@ -257,12 +257,12 @@ TEST(Convert, OptionsOverrideOnlyWhatIsSet) {
   objects.set_object_ba_iterations(4);
   objects.set_parked_objects_static(false);  // the default is true
   objects.set_dense_keyframes(false);        // the default is true
-  objects.set_extra_camera_keypoints(true);  // the default is false
+  objects.set_extra_camera_keypoints(false);  // the default is true
   objects.set_stereo_by_point_depth(true);   // the default is false
   SlamOptions o2;
   ASSERT_TRUE(ApplyOptions(objects, &o2).ok());
   EXPECT_FALSE(o2.dense_keyframes);
-  EXPECT_TRUE(o2.extra_camera_keypoints);
+  EXPECT_FALSE(o2.extra_camera_keypoints);
   EXPECT_TRUE(o2.stereo_by_point_depth);
   EXPECT_EQ(o2.object_ba_window_frames, 0);
   EXPECT_EQ(o2.object_ba_iterations, 4);

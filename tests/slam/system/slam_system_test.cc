@@ -174,7 +174,7 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   config.options.object_ba_iterations = 3;
   config.options.parked_objects_static = false;  // not the default
   config.options.dense_keyframes = false;        // not the default
-  config.options.extra_camera_keypoints = true;  // not the default
+  config.options.extra_camera_keypoints = false;  // not the default
   config.options.stereo_by_point_depth = true;   // not the default
   auto sys = SlamSystem::Create(config);
   ASSERT_TRUE(sys.ok());
@@ -187,7 +187,7 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   EXPECT_EQ((*loaded)->config().options.object_ba_iterations, 3);
   EXPECT_FALSE((*loaded)->config().options.parked_objects_static);
   EXPECT_FALSE((*loaded)->config().options.dense_keyframes);
-  EXPECT_TRUE((*loaded)->config().options.extra_camera_keypoints);
+  EXPECT_FALSE((*loaded)->config().options.extra_camera_keypoints);
   EXPECT_TRUE((*loaded)->config().options.stereo_by_point_depth);
   std::remove(path.c_str());
 }
@@ -407,9 +407,11 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   const Clip& clip = SmallClip();
   SessionConfig config = clip.config;
   config.options.track_objects = false;
-  // Older files load with dense keyframes off: the session they resume
-  // must have had it off to continue identically.
+  // Older files load with dense keyframes and the camera's extra keypoints
+  // off: the session they resume must have had them off to continue
+  // identically.
   config.options.dense_keyframes = false;
+  config.options.extra_camera_keypoints = false;
   const size_t dense_at = DenseKeyFramesOffset(config);
   auto sys = SlamSystem::Create(config);
   ASSERT_TRUE(sys.ok());
