@@ -146,6 +146,9 @@ absl::Status DynamicBaOptions::Validate() const {
   if (!(huber_delta > 0.0) || !(const_velocity_huber > 0.0) || !(min_sigma_px > 0.0)) {
     return absl::InvalidArgumentError("dynamic BA Huber thresholds and min_sigma_px must be > 0");
   }
+  if (!(dynamic_tukey_c >= 0.0) || !std::isfinite(dynamic_tukey_c)) {
+    return absl::InvalidArgumentError("dynamic BA dynamic_tukey_c must be finite and >= 0");
+  }
   if (!(const_velocity_sqrt_weight.array() >= 0.0).all() ||
       !(const_acceleration_sqrt_weight.array() >= 0.0).all()) {
     return absl::InvalidArgumentError("dynamic BA motion-prior weights must be >= 0");
@@ -329,8 +332,11 @@ absl::StatusOr<DynamicBaSummary> SolveDynamicBa(DynamicBaProblem* problem,
                    : static_cast<ceres::CostFunction*>(new optimization::DynamicReprojectionCost<2>(
                          cam, Measurement<2>(o), s, op.projector));
       }
-      ceres_problem.AddResidualBlock(
-          cost, new ceres::HuberLoss(options.huber_delta), x, xi, pose, p);
+      ceres::LossFunction* loss =
+          options.dynamic_tukey_c > 0.0
+              ? static_cast<ceres::LossFunction*>(new ceres::TukeyLoss(options.dynamic_tukey_c))
+              : new ceres::HuberLoss(options.huber_delta);
+      ceres_problem.AddResidualBlock(cost, loss, x, xi, pose, p);
       ceres_problem.SetManifold(pose, &se3_manifold);
       ceres_problem.SetParameterBlockConstant(pose);  // optimised through ξ̃ only
       if (obj.frames[static_cast<size_t>(f)].fixed) ceres_problem.SetParameterBlockConstant(xi);

@@ -256,6 +256,66 @@ TEST(DynamicBa, LowersErrorOnAPerturbedWindow) {
   }
 }
 
+// A fifth of the car's matches lie 10 px ahead of their point (a patch
+// match that runs ahead of a turning car, docs/objects.md section 42, a
+// one-sided tail). Huber's linear tail (the default) still follows them;
+// Tukey's biweight (DynamicBaOptions::dynamic_tukey_c at 7) gives them no
+// weight: its solution is that of the window without them (but for the MAD
+// σ, which they could move).
+TEST(DynamicBa, TukeyLeavesAOneSidedTailOfMatchesOut) {
+  // The car's poses after the BA, with the off matches kept or deleted;
+  // from the true poses (the objects' σ is the MAD of the initial residuals,
+  // which a tracked window's are near).
+  auto solve = [](double tukey_c, bool keep_off, uint64_t seed) {
+    Window w = MakeWindow(0.3, seed);
+    std::mt19937_64 rng(seed + 100);
+    std::bernoulli_distribution off(0.2);  // other points in every frame
+    std::vector<BaObservation> kept;
+    for (BaObservation o : w.problem.objects[0].observations) {
+      if (off(rng)) {
+        if (!keep_off) continue;
+        o.uv.x() += 10.0;
+        o.u_right += 10.0;
+      }
+      kept.push_back(o);
+    }
+    w.problem.objects[0].observations = kept;
+    DynamicBaOptions options;
+    options.dynamic_tukey_c = tukey_c;
+    const auto summary = SolveDynamicBa(&w.problem, options);
+    EXPECT_TRUE(summary.ok() && summary->usable);
+    std::vector<SE3d> poses;
+    for (const BaObjectFrame& f : w.problem.objects[0].frames) poses.push_back(f.world_from_object);
+    return poses;
+  };
+  // How far the off matches pull the car: mean over frames and windows.
+  auto pull = [&](double tukey_c) {
+    double m = 0.0;
+    int n = 0;
+    for (uint64_t seed = 1; seed <= 4; ++seed) {
+      const std::vector<SE3d> with = solve(tukey_c, true, seed);
+      const std::vector<SE3d> without = solve(tukey_c, false, seed);
+      for (size_t f = 0; f < with.size(); ++f, ++n) m += TranslationError(with[f], without[f]);
+    }
+    return m / n;
+  };
+  const double huber = pull(0.0);
+  EXPECT_EQ(DynamicBaOptions().dynamic_tukey_c, 0.0);  // Huber by default
+  const double tukey = pull(7.0);
+  std::printf(
+      "[dynamic BA, 20 %% of the car's matches 10 px off] they move the car %.4f m "
+      "(Huber), %.4f m (Tukey)\n",
+      huber,
+      tukey);
+  EXPECT_GT(huber, 0.005);
+  EXPECT_LT(tukey, 0.1 * huber);
+  DynamicBaOptions bad;
+  bad.dynamic_tukey_c = -1.0;
+  EXPECT_EQ(bad.Validate().code(), absl::StatusCode::kInvalidArgument);
+  bad.dynamic_tukey_c = std::nan("");
+  EXPECT_EQ(bad.Validate().code(), absl::StatusCode::kInvalidArgument);
+}
+
 // Points flagged fixed (a sliding window's inherited points) keep their
 // values to the bit; the others are refined.
 TEST(DynamicBa, FixedPointsStayWhereTheyAre) {
