@@ -203,43 +203,7 @@ bool ReadRunConfig(const std::string& path, RunConfig* config, std::string* erro
           return false;
         }
         const double v = o.real();
-        if (k == "num_features")
-          s.num_features = static_cast<int>(v);
-        else if (k == "num_levels")
-          s.num_levels = static_cast<int>(v);
-        else if (k == "scale_factor")
-          s.scale_factor = v;
-        else if (k == "fast_threshold")
-          s.fast_threshold = static_cast<int>(v);
-        else if (k == "max_depth_baselines")
-          s.max_depth_baselines = v;
-        else if (k == "local_ba_iterations")
-          s.local_ba_iterations = static_cast<int>(v);
-        else if (k == "num_threads")
-          s.num_threads = static_cast<int>(v);
-        else if (k == "use_masks")
-          s.use_masks = v != 0;
-        else if (k == "track_objects")
-          s.track_objects = v != 0;
-        else if (k == "constrain_objects")
-          s.constrain_objects = v != 0;
-        else if (k == "temporal_window_s")
-          s.temporal_window_s = v;
-        else if (k == "object_ba_window_frames")
-          s.object_ba_window_frames = static_cast<int>(v);
-        else if (k == "object_ba_iterations")
-          s.object_ba_iterations = static_cast<int>(v);
-        else if (k == "parked_objects_static")
-          s.parked_objects_static = v != 0;
-        else if (k == "dense_keyframes")
-          s.dense_keyframes = v != 0;
-        else if (k == "extra_camera_keypoints")
-          s.extra_camera_keypoints = v != 0;
-        else if (k == "stereo_by_point_depth")
-          s.stereo_by_point_depth = v != 0;
-        else if (k == "seed")
-          s.seed = static_cast<uint64_t>(v);
-        else {
+        if (!SetNumericSlamOption(k, v, &s)) {
           *error = "config: unknown key slam." + k;
           return false;
         }

@@ -163,43 +163,7 @@ absl::Status ReadSlamOptions(const cv::FileNode& node, SlamOptions* o) {
       return absl::InvalidArgumentError(absl::StrCat("config: slam.", key, " must be a number"));
     }
     const double v = n.real();
-    if (key == "num_features")
-      o->num_features = static_cast<int>(v);
-    else if (key == "num_levels")
-      o->num_levels = static_cast<int>(v);
-    else if (key == "scale_factor")
-      o->scale_factor = v;
-    else if (key == "fast_threshold")
-      o->fast_threshold = static_cast<int>(v);
-    else if (key == "max_depth_baselines")
-      o->max_depth_baselines = v;
-    else if (key == "local_ba_iterations")
-      o->local_ba_iterations = static_cast<int>(v);
-    else if (key == "num_threads")
-      o->num_threads = static_cast<int>(v);
-    else if (key == "use_masks")
-      o->use_masks = v != 0;
-    else if (key == "track_objects")
-      o->track_objects = v != 0;
-    else if (key == "constrain_objects")
-      o->constrain_objects = v != 0;
-    else if (key == "temporal_window_s")
-      o->temporal_window_s = v;
-    else if (key == "object_ba_window_frames")
-      o->object_ba_window_frames = static_cast<int>(v);
-    else if (key == "object_ba_iterations")
-      o->object_ba_iterations = static_cast<int>(v);
-    else if (key == "parked_objects_static")
-      o->parked_objects_static = v != 0;
-    else if (key == "dense_keyframes")
-      o->dense_keyframes = v != 0;
-    else if (key == "extra_camera_keypoints")
-      o->extra_camera_keypoints = v != 0;
-    else if (key == "stereo_by_point_depth")
-      o->stereo_by_point_depth = v != 0;
-    else if (key == "seed")
-      o->seed = static_cast<uint64_t>(v);
-    else
+    if (!SetNumericSlamOption(key, v, o))
       return absl::InvalidArgumentError(absl::StrCat("config: unknown key slam.", key));
   }
   return absl::OkStatus();

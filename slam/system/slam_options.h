@@ -2,6 +2,9 @@
 // (server config, CLI flags), validated here.
 #pragma once
 
+#include <cstdint>
+#include <string>
+
 #include "absl/status/status.h"
 #include "slam/features/orb_extractor.h"
 #include "slam/geometry/stereo_camera.h"
@@ -84,6 +87,52 @@ struct SlamOptions {
 
 // The ORB extractor settings of `options` (the engine's feature front end).
 features::OrbOptions OrbOptionsFrom(const SlamOptions& options);
+
+// Sets the numeric (or 0/1 flag) option named `key`, as the `slam:` keys of
+// the client's and the server's config files spell them, to `v`; false for
+// a key that is not one of them (mapping_mode, a string, is not). Inline so
+// that the server library, which does not link the engine, can use it.
+inline bool SetNumericSlamOption(const std::string& key, double v, SlamOptions* o) {
+  if (key == "num_features")
+    o->num_features = static_cast<int>(v);
+  else if (key == "num_levels")
+    o->num_levels = static_cast<int>(v);
+  else if (key == "scale_factor")
+    o->scale_factor = v;
+  else if (key == "fast_threshold")
+    o->fast_threshold = static_cast<int>(v);
+  else if (key == "max_depth_baselines")
+    o->max_depth_baselines = v;
+  else if (key == "local_ba_iterations")
+    o->local_ba_iterations = static_cast<int>(v);
+  else if (key == "num_threads")
+    o->num_threads = static_cast<int>(v);
+  else if (key == "use_masks")
+    o->use_masks = v != 0;
+  else if (key == "track_objects")
+    o->track_objects = v != 0;
+  else if (key == "constrain_objects")
+    o->constrain_objects = v != 0;
+  else if (key == "temporal_window_s")
+    o->temporal_window_s = v;
+  else if (key == "object_ba_window_frames")
+    o->object_ba_window_frames = static_cast<int>(v);
+  else if (key == "object_ba_iterations")
+    o->object_ba_iterations = static_cast<int>(v);
+  else if (key == "parked_objects_static")
+    o->parked_objects_static = v != 0;
+  else if (key == "dense_keyframes")
+    o->dense_keyframes = v != 0;
+  else if (key == "extra_camera_keypoints")
+    o->extra_camera_keypoints = v != 0;
+  else if (key == "stereo_by_point_depth")
+    o->stereo_by_point_depth = v != 0;
+  else if (key == "seed")
+    o->seed = static_cast<uint64_t>(v);
+  else
+    return false;
+  return true;
+}
 
 struct SessionConfig {
   geometry::StereoCamera camera;
