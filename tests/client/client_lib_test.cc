@@ -61,7 +61,7 @@ TEST(SlamConvert, SessionConfigSurvivesTheServerSetup) {
   config.options.seed = 99;
   config.options.object_ba_window_frames = 7;
   config.options.object_ba_iterations = 3;
-  config.options.parked_objects_static = false;  // not the default
+  config.options.parked_objects_static = false;   // not the default
   config.options.dense_keyframes = false;         // not the default
   config.options.extra_camera_keypoints = false;  // not the default
   config.options.stereo_by_point_depth = true;    // not the default

@@ -255,10 +255,10 @@ TEST(Convert, OptionsOverrideOnlyWhatIsSet) {
   pb::SlamOptions objects;
   objects.set_object_ba_window_frames(0);
   objects.set_object_ba_iterations(4);
-  objects.set_parked_objects_static(false);  // the default is true
-  objects.set_dense_keyframes(false);        // the default is true
+  objects.set_parked_objects_static(false);   // the default is true
+  objects.set_dense_keyframes(false);         // the default is true
   objects.set_extra_camera_keypoints(false);  // the default is true
-  objects.set_stereo_by_point_depth(true);   // the default is false
+  objects.set_stereo_by_point_depth(true);    // the default is false
   SlamOptions o2;
   ASSERT_TRUE(ApplyOptions(objects, &o2).ok());
   EXPECT_FALSE(o2.dense_keyframes);

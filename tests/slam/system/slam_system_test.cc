@@ -172,10 +172,10 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   EXPECT_EQ(SlamSystem::Create(config).status().code(), absl::StatusCode::kInvalidArgument);
   config.options.object_ba_window_frames = 7;
   config.options.object_ba_iterations = 3;
-  config.options.parked_objects_static = false;  // not the default
-  config.options.dense_keyframes = false;        // not the default
+  config.options.parked_objects_static = false;   // not the default
+  config.options.dense_keyframes = false;         // not the default
   config.options.extra_camera_keypoints = false;  // not the default
-  config.options.stereo_by_point_depth = true;   // not the default
+  config.options.stereo_by_point_depth = true;    // not the default
   auto sys = SlamSystem::Create(config);
   ASSERT_TRUE(sys.ok());
   ASSERT_TRUE((*sys)->Process(SmallClip().frames[0]).ok());
