@@ -330,6 +330,24 @@ TrackedObject* ObjectTracker::mutable_object(int64_t id) {
   return it == objects_.end() ? nullptr : &it->second;
 }
 
+namespace {
+
+// Gives `o` the joint `joint`: its last step and the step's covariance are
+// projected onto the new joint's twists. A refitted road plane turns the
+// joint a little from frame to frame, and a step kept from the old joint
+// (the prediction of a step that then fails, a continued object's step) would
+// be reported with out-of-plane components.
+void AdoptJoint(const joints::Joint& joint, TrackedObject* o) {
+  const Matrix6d projector = joint.WorldProjector();
+  o->joint = joint;
+  o->twist_step = projector * o->twist_step;
+  if (o->twist_covariance_valid) {
+    o->twist_covariance = projector * o->twist_covariance * projector.transpose();
+  }
+}
+
+}  // namespace
+
 joints::Joint ObjectTracker::EffectiveJoint(const joints::Joint& joint) const {
   if (options_.constrained) return joint;
   return joints::Joint(joints::JointType::kFree, joint.world_from_joint());
@@ -358,7 +376,7 @@ void ObjectTracker::UpdateJoint(const joints::Joint& joint, TrackedObject* o) co
     const Eigen::Vector3d t = o->world_from_object.translation();
     o->world_from_object.translation() = t - (t - on_plane).dot(n) * n;
   }
-  o->joint = next;
+  AdoptJoint(next, o);
 }
 
 ObjectTracker::State ObjectTracker::GetState() const {
@@ -716,13 +734,14 @@ Matrix6d ObjectTracker::PredictedCovariance(const FrameContext& ctx, const Track
 }
 
 bool ObjectTracker::FilterStep(const TrackedObject& o,
+                               const joints::Joint& joint,
                                const Vector6d& predicted,
                                const Matrix6d& predicted_covariance,
                                TwistEstimate* est) const {
   if (est->sigma_px > options_.max_step_sigma_px) return false;
   if (!o.twist_covariance_valid || !est->covariance_valid) return true;  // nothing to fuse
   const Eigen::Matrix<double, 6, Eigen::Dynamic> basis =
-      ProjectorRangeBasis(o.joint.WorldProjector());
+      ProjectorRangeBasis(joint.WorldProjector());
   const Eigen::Index k = basis.cols();
   if (k == 0) return true;
   const Eigen::MatrixXd p = basis.transpose() * predicted_covariance * basis;
@@ -1051,7 +1070,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   if (filtered) {
     if (o->twist_covariance_valid) predicted_covariance = PredictedCovariance(ctx, *o);
     const Vector6d measured = est->twist;
-    if (!FilterStep(*o, initial, predicted_covariance, &*est)) {
+    if (!FilterStep(*o, o->joint, initial, predicted_covariance, &*est)) {
       // A turn's onset (manoeuvre_angular_acceleration_sigma_radps2). A step
       // that fails this gate too coasts with the wider covariance, so that
       // the next step is gated as a possible turn as well.
@@ -1060,7 +1079,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       if (manoeuvre > 0.0 && o->twist_covariance_valid &&
           !ReversesTurn(*o, initial, measured, ctx.dt)) {
         predicted_covariance += ProcessNoise(*o, ctx.dt, 0.0, manoeuvre);
-        passed = FilterStep(*o, initial, predicted_covariance, &*est);
+        passed = FilterStep(*o, o->joint, initial, predicted_covariance, &*est);
         if (passed) ++stats_.manoeuvres;
       }
       if (!passed) {
@@ -1131,7 +1150,8 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
                               double* score) {
   const ObjectFrameInput& f = ctx.frame;
   const double steps = StepsSinceSeen(f, *o);
-  const Matrix6d projector = EffectiveJoint(det.joint).WorldProjector();
+  const joints::Joint joint = EffectiveJoint(det.joint);
+  const Matrix6d projector = joint.WorldProjector();
   const Vector6d initial = projector * (steps * o->twist_step);
   const SE3d predicted = SE3d::Exp(initial) * o->world_from_object;
   const SE3d camera_from_object = f.camera_from_world * predicted;
@@ -1198,7 +1218,7 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
                           obs,
                           initial,
                           options_.estimator,
-                          TurnPrior(EffectiveJoint(det.joint), std::max(1.0, steps) * ctx.dt));
+                          TurnPrior(joint, std::max(1.0, steps) * ctx.dt));
   // A residual scale no tracked step may have (max_step_sigma_px): the
   // matches do not agree on a motion.
   if (!est.ok() || !est->success || est->sigma_px > options_.max_step_sigma_px) return false;
@@ -1210,12 +1230,12 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
     const Matrix6d predicted_covariance =
         projector * (n * n * o->twist_covariance) * projector.transpose() +
         n * n * n * ProcessNoise(*o, o->step_seconds);
-    if (!FilterStep(*o, initial, predicted_covariance, &*est)) {
+    if (!FilterStep(*o, joint, initial, predicted_covariance, &*est)) {
       ctx.gate_refused.insert(o->id);
       return false;
     }
   }
-  o->joint = EffectiveJoint(det.joint);
+  o->joint = joint;
   o->world_from_object = est->world_from_object;
   o->twist_step = est->twist / n;
   // The mean step over the gap, with its covariance: the next tracked step is
@@ -1291,10 +1311,10 @@ void ObjectTracker::Continue(const SE3d& predicted,
   // The motion over the gap is the prediction: the step and its covariance
   // stand, widened by the random acceleration of one step.
   lost->world_from_object = predicted;
+  AdoptJoint(created->joint, lost);
   if (lost->twist_covariance_valid && lost->step_seconds > 0.0) {
     lost->twist_covariance += ProcessNoise(*lost, lost->step_seconds);
   }
-  lost->joint = created->joint;
   lost->class_id = created->class_id;
   lost->last_num_inliers = static_cast<int>(lost->points.size());
 }

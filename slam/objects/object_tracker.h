@@ -587,8 +587,10 @@ class ObjectTracker {
   // The constant-velocity filter's update of a tracked step (see
   // acceleration_sigma_mps2): fuses `estimate` with the prediction
   // `predicted` in place and returns true, or returns false when the step
-  // fails the gate.
+  // fails the gate. Both live in the subspace of `joint`'s projector: the
+  // detection's joint, which at a re-acquisition is not yet the object's.
   bool FilterStep(const TrackedObject& object,
+                  const joints::Joint& joint,
                   const geometry::Vector6d& predicted,
                   const geometry::Matrix6d& predicted_covariance,
                   TwistEstimate* estimate) const;
