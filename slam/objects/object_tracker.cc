@@ -242,6 +242,12 @@ absl::Status ObjectTrackerOptions::Validate() const {
         "object tracker needs young_turn_rate_sigma_radps >= 0, young_turn_prior_poses >= 0 and "
         "starting_turn_prior_poses >= 0");
   }
+  if (!(approaching_disparity_noise_scale > 0.0 && approaching_disparity_noise_scale <= 1.0) ||
+      !(approaching_growth_time_s >= 0.0)) {
+    return absl::InvalidArgumentError(
+        "object tracker needs approaching_disparity_noise_scale in (0, 1] and "
+        "approaching_growth_time_s >= 0");
+  }
   if (!(tracked_stereo_search_fraction >= 0.0 && tracked_stereo_search_fraction <= 1.0)) {
     return absl::InvalidArgumentError(
         "object tracker needs tracked_stereo_search_fraction in [0, 1]");
@@ -386,6 +392,7 @@ ObjectTracker::State ObjectTracker::GetState() const {
   s.prev_left = prev_left_;
   s.prev_timestamp_ns = prev_timestamp_ns_;
   s.has_prev = has_prev_;
+  s.prev_camera_from_world = prev_camera_from_world_;
   s.stats = stats_;
   s.removed_trajectories = removed_trajectories_;
   return s;
@@ -397,6 +404,7 @@ void ObjectTracker::SetState(State state) {
   prev_left_ = std::move(state.prev_left);
   prev_timestamp_ns_ = state.prev_timestamp_ns;
   has_prev_ = state.has_prev;
+  prev_camera_from_world_ = state.prev_camera_from_world;
   stats_ = state.stats;
   removed_trajectories_ = std::move(state.removed_trajectories);
 }
@@ -681,6 +689,20 @@ double ObjectTracker::DepthNoise(double depth, double level_scale) const {
   return depth * depth * options_.disparity_sigma_px * level_scale / camera_.bf();
 }
 
+double ObjectTracker::ApproachDisparityScale(const FrameContext& ctx,
+                                             const TrackedObject& o,
+                                             const SE3d& camera_from_predicted) const {
+  const SE3d& camera_from_world_before =
+      prev_camera_from_world_ ? *prev_camera_from_world_ : ctx.frame.camera_from_world;
+  const double range_before = (camera_from_world_before * o.world_from_object).translation().norm();
+  const double range_now = camera_from_predicted.translation().norm();
+  if (!(ctx.dt > 0.0) || !(range_now < range_before)) return 1.0;
+  // The image's rate of growth (1 / the time to contact), 1/s.
+  const double growth = (range_before - range_now) / (range_now * ctx.dt);
+  return std::max(options_.approaching_disparity_noise_scale,
+                  1.0 / (1.0 + options_.approaching_growth_time_s * growth));
+}
+
 double ObjectTracker::StepDisparityNoiseRatio(double level_scale) const {
   return options_.step_disparity_noise
              ? options_.disparity_sigma_px * level_scale / options_.estimator.min_sigma_px
@@ -859,6 +881,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   const SE3d predicted = SE3d::Exp(o->joint.WorldProjector() * initial) * o->world_from_object;
   const SE3d camera_from_predicted = f.camera_from_world * predicted;
   if (BeyondTrackingRange(camera_from_predicted)) return false;
+  const double approach_scale = ApproachDisparityScale(ctx, *o, camera_from_predicted);
 
   std::vector<size_t> flow_idx;
   std::vector<Eigen::Vector2d> prev_uv, pred_uv;
@@ -888,7 +911,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
     if (options_.model_point_noise) t.point_sigma_in_object = o->points[point].sigma_in_object;
     t.uv = uv;
     t.u_right = u_right;
-    t.disparity_noise_ratio = StepDisparityNoiseRatio(level_scale);
+    t.disparity_noise_ratio = StepDisparityNoiseRatio(level_scale) * approach_scale;
     obs.push_back(t);
     obs_point.push_back(point);
   };
@@ -1508,6 +1531,7 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
   prev_left_ = frame.left.clone();
   prev_timestamp_ns_ = frame.timestamp_ns;
   has_prev_ = true;
+  prev_camera_from_world_ = frame.camera_from_world;
   return results;
 }
 

@@ -792,6 +792,9 @@ void ObjectStage::Write(BinaryWriter* w) const {
     w->Pod(ts_ns);
     w->Pose(pose);
   }
+  // The tracker's previous camera pose (format 16).
+  w->Pod<uint8_t>(ts.prev_camera_from_world.has_value());
+  if (ts.prev_camera_from_world) w->Pose(*ts.prev_camera_from_world);
 }
 
 absl::Status ObjectStage::Read(BinaryReader* r, uint32_t version) {
@@ -942,6 +945,10 @@ absl::Status ObjectStage::Read(BinaryReader* r, uint32_t version) {
     window.emplace_back(index, ts_ns, r->Pose());
   }
   if (!r->ok()) return corrupt("axis joints or BA window");
+  // Before format 16 the tracker's previous camera pose was not kept: its
+  // next frame takes the current one's (ObjectTracker::State).
+  if (version >= 16 && r->Pod<uint8_t>() != 0) ts.prev_camera_from_world = r->Pose();
+  if (!r->ok()) return corrupt("previous camera pose");
 
   associator_.RestoreState(std::move(clusters), next_cluster_id);
   planes_ = std::move(planes);

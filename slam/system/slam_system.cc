@@ -65,7 +65,10 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // again at the point's next match.
 // 14: + SlamOptions::extra_camera_keypoints. Older files load with it off.
 // 15: + SlamOptions::stereo_by_point_depth. Older files load with it off.
-constexpr uint32_t kFormatVersion = 15;
+// 16: + the object tracker's previous camera pose
+// (ObjectTrackerOptions::approaching_growth_time_s). Older files load
+// without: the first frame after loading takes the current camera pose.
+constexpr uint32_t kFormatVersion = 16;
 // Covisible keyframes in the local BA with dense keyframes (SlamOptions).
 constexpr int kDenseLocalBaKeyFrames = 8;
 // With SlamOptions::extra_camera_keypoints the right image's budget grows by

@@ -95,6 +95,71 @@ TEST(ObjectTracker, TracksAPlanarCarExactlyWithoutNoise) {
   EXPECT_EQ(static_cast<int>(o.history.size()), 15);
 }
 
+// A step that brings the car nearer to the camera scales its disparities'
+// noise ratio by 1 / (1 + T g), g the rate of growth of its image (closing
+// speed over range), no less than approaching_disparity_noise_scale, and the
+// observations kept for the objects' BA carry it; a receding car's keep the
+// ratio of their level (kDisparityNoiseRatio on level 0). Without noise the
+// constant-velocity prediction is the tracked pose, so g is that of the
+// tracked poses.
+TEST(ObjectTracker, ApproachingCarWeighsItsDisparitiesMore) {
+  struct Case {
+    bool approaching;
+    double growth_time_s;
+    double floor;
+  };
+  for (const Case& c : {Case{false, 1.25, 0.25},
+                        Case{true, 1.25, 0.25},
+                        Case{true, 1e6, 0.25},
+                        Case{true, 0.0, 0.25}}) {
+    SCOPED_TRACE(::testing::Message()
+                 << (c.approaching ? "approaching" : "receding") << " T " << c.growth_time_s);
+    CarSequence seq(0.0, 5);
+    // 8 m/s along the road, the camera 6 m/s after it: the car recedes;
+    // coming the other way, it approaches.
+    if (c.approaching) seq.set_step(-seq.step());
+    ObjectTrackerOptions options;
+    options.approaching_growth_time_s = c.growth_time_s;
+    options.approaching_disparity_noise_scale = c.floor;
+    ObjectTracker tracker(seq.camera(), options);
+    double range_before = 0.0, range = 0.0;
+    for (int i = 0; i < 6; ++i) {
+      const auto results = tracker.Process(seq.Next(4, true));
+      ASSERT_TRUE(results.ok()) << results.status();
+      ASSERT_EQ(results->size(), 1u);
+      range_before = range;
+      // The range of the tracker's object frame (its origin is its own).
+      range = (seq.camera_from_world_true() * (*results)[0].world_from_object).translation().norm();
+      if (i > 0) {
+        EXPECT_EQ(range < range_before, c.approaching) << "frame " << i;
+      }
+    }
+    const double growth = (range_before - range) / (range * 0.1);  // 10 Hz
+    const double expected =
+        kDisparityNoiseRatio *
+        (c.approaching ? std::max(c.floor, 1.0 / (1.0 + c.growth_time_s * growth)) : 1.0);
+    if (c.approaching && c.growth_time_s == 1.25) {
+      EXPECT_GT(growth, 0.5);  // 1.4 m per frame at 14 m
+      EXPECT_GT(expected, c.floor * kDisparityNoiseRatio);
+    }
+    const TrackedObject& o = tracker.objects().begin()->second;
+    ASSERT_EQ(o.history.size(), 6u);
+    int stereo = 0;
+    for (const ObjectPointObservation& obs : o.history.back().observations) {
+      if (obs.u_right < 0.0) continue;
+      ++stereo;
+      EXPECT_NEAR(obs.disparity_noise_ratio, expected, 1e-6);
+    }
+    EXPECT_GE(stereo, 50);
+    // The creation frame's observations are no step's: the level's ratio.
+    for (const ObjectPointObservation& obs : o.history.front().observations) {
+      if (obs.u_right >= 0.0) {
+        EXPECT_NEAR(obs.disparity_noise_ratio, kDisparityNoiseRatio, 1e-12);
+      }
+    }
+  }
+}
+
 // The road plane's normal, refitted every frame, tilts by 1 mrad about x,
 // then about z, from frame to frame. A planar car's reported twist has no
 // out-of-plane part in its joint, whichever way its step was kept: tracked,
@@ -127,6 +192,42 @@ TEST(ObjectTracker, APlanarCarsTwistStaysInItsJointWhenTheRoadIsRefitted) {
   }
   EXPECT_EQ(lost, 1);
   EXPECT_EQ(tracked, 7);
+}
+
+// The previous camera pose is part of the tracker's state: a tracker
+// restored after frame 3 weighs frame 4's disparities as the uninterrupted
+// one does, bit for bit; restored without it (a state file older than
+// format 16), its first step measures the closing speed from the current
+// camera pose, and weighs them differently.
+TEST(ObjectTracker, TheApproachWeightResumesFromTheSavedState) {
+  CarSequence seq(0.0, 5);
+  seq.set_step(-seq.step());  // coming towards the camera
+  std::vector<ObjectFrameInput> frames;
+  for (int i = 0; i < 5; ++i) frames.push_back(seq.Next(4, true));
+  ObjectTrackerOptions options;
+  options.approaching_growth_time_s = 1.25;
+  options.approaching_disparity_noise_scale = 0.25;
+  ObjectTracker tracker(seq.camera(), options);
+  for (int i = 0; i < 4; ++i) ASSERT_TRUE(tracker.Process(frames[i]).ok());
+  ObjectTracker resumed(seq.camera(), options), without(seq.camera(), options);
+  resumed.SetState(tracker.GetState());
+  ObjectTracker::State state = tracker.GetState();
+  ASSERT_TRUE(state.prev_camera_from_world.has_value());
+  state.prev_camera_from_world.reset();
+  without.SetState(state);
+  auto ratios = [&](ObjectTracker* t) {
+    EXPECT_TRUE(t->Process(frames[4]).ok());
+    std::vector<double> r;
+    for (const ObjectPointObservation& obs :
+         t->objects().begin()->second.history.back().observations)
+      if (obs.u_right >= 0.0) r.push_back(obs.disparity_noise_ratio);
+    return r;
+  };
+  const std::vector<double> a = ratios(&tracker), b = ratios(&resumed), c = ratios(&without);
+  ASSERT_GE(a.size(), 50u);
+  EXPECT_EQ(a, b);
+  ASSERT_EQ(a.size(), c.size());
+  EXPECT_LT(a[0], c[0]);  // from the current pose the car seems to close more slowly
 }
 
 TEST(ObjectTracker, NoisyTrackingAndUnconstrainedSwitch) {
@@ -1550,6 +1651,18 @@ TEST(ObjectTracker, RejectsMalformedInput) {
     EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
   }
   options.patch_refresh_view_change_deg = 5.0;
+  EXPECT_TRUE(options.Validate().ok());
+  for (double bad : {0.0, -0.5, 1.5, std::nan("")}) {
+    options.approaching_disparity_noise_scale = bad;
+    EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
+  }
+  options.approaching_disparity_noise_scale = 1.0;
+  EXPECT_TRUE(options.Validate().ok());
+  for (double bad : {-1.0, std::nan("")}) {
+    options.approaching_growth_time_s = bad;
+    EXPECT_EQ(options.Validate().code(), absl::StatusCode::kInvalidArgument);
+  }
+  options.approaching_growth_time_s = 1.25;
   EXPECT_TRUE(options.Validate().ok());
   for (double bad : {-0.5, std::nan("")}) {
     options.patch_refresh_max_offset_px = bad;

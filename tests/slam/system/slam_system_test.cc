@@ -422,7 +422,7 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   uint32_t version = 0;
   std::memcpy(&version, &data[8], sizeof(version));
-  ASSERT_EQ(version, 15u);
+  ASSERT_EQ(version, 16u);
   // `bytes` declared as format `as` loads; returns its options.
   auto options_as = [](std::string bytes, uint32_t as) {
     std::memcpy(&bytes[8], &as, sizeof(as));
@@ -433,6 +433,9 @@ TEST(SlamSystem, LoadsFormatVersion3) {
     EXPECT_TRUE(loaded.ok()) << loaded.status();
     return loaded.ok() ? (*loaded)->config().options : SlamOptions();
   };
+  // Format 16 only adds to the object stage: without it the file is a
+  // format-15 one.
+  EXPECT_FALSE(options_as(data, 15).dense_keyframes);  // loads, its options as saved
   // Format 15 adds SlamOptions::stereo_by_point_depth, the byte after
   // extra_camera_keypoints; without it the file is a format-14 one.
   ASSERT_EQ(data[dense_at + 2], '\0');
