@@ -692,6 +692,7 @@ double ObjectTracker::DepthNoise(double depth, double level_scale) const {
 double ObjectTracker::ApproachDisparityScale(const FrameContext& ctx,
                                              const TrackedObject& o,
                                              const SE3d& camera_from_predicted) const {
+  if (!(options_.approaching_growth_time_s > 0.0)) return 1.0;  // off
   const SE3d& camera_from_world_before =
       prev_camera_from_world_ ? *prev_camera_from_world_ : ctx.frame.camera_from_world;
   const double range_before = (camera_from_world_before * o.world_from_object).translation().norm();

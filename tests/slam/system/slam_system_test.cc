@@ -398,6 +398,53 @@ size_t DenseKeyFramesOffset(SessionConfig config) {
   return k;
 }
 
+// A format-15 file with objects (before the tracker's previous camera pose
+// was saved) loads, and with the default options the resumed session
+// continues exactly as the uninterrupted one: the pose only serves
+// ObjectTrackerOptions::approaching_growth_time_s, off by default. Format 16
+// appended it (a flag byte and a pose) at the end of the object stage, just
+// before format 10's block (an int32 and its uint64 length) and the trailer.
+TEST(SlamSystem, LoadsObjectStateFormat15) {
+  const Clip& clip = CarsClip();
+  const size_t split = 8;
+  auto first = SlamSystem::Create(clip.config);
+  ASSERT_TRUE(first.ok());
+  for (size_t k = 0; k < split; ++k) ASSERT_TRUE((*first)->Process(clip.frames[k]).ok());
+  const std::string path = TempPath("state_objects_v16");
+  ASSERT_TRUE((*first)->Save(path).ok());
+  std::ifstream in(path, std::ios::binary);
+  std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  std::remove(path.c_str());
+  const size_t tail = 4 + 8 + 8;  // format 10's block and the trailer
+  const size_t added = 1 + 7 * sizeof(double);
+  ASSERT_GT(data.size(), tail + added);
+  ASSERT_EQ(data[data.size() - tail - added], '\x01');  // a previous camera pose
+  data.erase(data.size() - tail - added, added);
+  const uint32_t v15 = 15;
+  std::memcpy(&data[8], &v15, sizeof(v15));
+  const std::string older = TempPath("state_objects_v15");
+  WriteBytes(older, data);
+  auto resumed = SlamSystem::Load(older);
+  std::remove(older.c_str());
+  ASSERT_TRUE(resumed.ok()) << resumed.status();
+  int rows = 0;
+  for (size_t k = split; k < clip.frames.size(); ++k) {
+    auto ra = (*first)->Process(clip.frames[k]);
+    auto rb = (*resumed)->Process(clip.frames[k]);
+    ASSERT_TRUE(ra.ok() && rb.ok());
+    EXPECT_TRUE(SamePose(ra->world_from_camera, rb->world_from_camera)) << "frame " << k;
+    EXPECT_TRUE(SameObjects(*ra, *rb)) << "frame " << k;
+    rows += static_cast<int>(ra->objects.size());
+  }
+  EXPECT_GT(rows, 10);
+  // Declared as format 16, the same bytes lack the pose: rejected.
+  const uint32_t v16 = 16;
+  std::memcpy(&data[8], &v16, sizeof(v16));
+  WriteBytes(older, data);
+  EXPECT_EQ(SlamSystem::Load(older).status().code(), absl::StatusCode::kDataLoss);
+  std::remove(older.c_str());
+}
+
 // A format-3 file (written before the objects were saved) still loads. Without
 // the object stage a format-11 (= 10) file less its last block (before the trailer)
 // and its dense_keyframes byte is a format-4 file (formats 5 to 8 only add to
