@@ -379,6 +379,17 @@ void WriteBytes(const std::string& path, const std::string& bytes) {
   out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
 }
 
+// The bytes of the file at `path`.
+std::string ReadBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+// Sets the format version of the state file `bytes` (after its 8-byte magic).
+void SetVersion(uint32_t version, std::string* bytes) {
+  std::memcpy(&(*bytes)[8], &version, sizeof(version));
+}
+
 // The offset of SlamOptions::dense_keyframes in a state file (format 9+): the
 // first byte where two fresh sessions that differ only in it differ.
 size_t DenseKeyFramesOffset(SessionConfig config) {
@@ -412,16 +423,14 @@ TEST(SlamSystem, LoadsObjectStateFormat15) {
   for (size_t k = 0; k < split; ++k) ASSERT_TRUE((*first)->Process(clip.frames[k]).ok());
   const std::string path = TempPath("state_objects_v16");
   ASSERT_TRUE((*first)->Save(path).ok());
-  std::ifstream in(path, std::ios::binary);
-  std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  std::string data = ReadBytes(path);
   std::remove(path.c_str());
   const size_t tail = 4 + 8 + 8;  // format 10's block and the trailer
   const size_t added = 1 + 7 * sizeof(double);
   ASSERT_GT(data.size(), tail + added);
   ASSERT_EQ(data[data.size() - tail - added], '\x01');  // a previous camera pose
   data.erase(data.size() - tail - added, added);
-  const uint32_t v15 = 15;
-  std::memcpy(&data[8], &v15, sizeof(v15));
+  SetVersion(15, &data);
   const std::string older = TempPath("state_objects_v15");
   WriteBytes(older, data);
   auto resumed = SlamSystem::Load(older);
@@ -438,8 +447,7 @@ TEST(SlamSystem, LoadsObjectStateFormat15) {
   }
   EXPECT_GT(rows, 10);
   // Declared as format 16, the same bytes lack the pose: rejected.
-  const uint32_t v16 = 16;
-  std::memcpy(&data[8], &v16, sizeof(v16));
+  SetVersion(16, &data);
   WriteBytes(older, data);
   EXPECT_EQ(SlamSystem::Load(older).status().code(), absl::StatusCode::kDataLoss);
   std::remove(older.c_str());
@@ -465,14 +473,13 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   for (int k = 0; k < 6; ++k) ASSERT_TRUE((*sys)->Process(clip.frames[k]).ok());
   const std::string path = TempPath("state_v4");
   ASSERT_TRUE((*sys)->Save(path).ok());
-  std::ifstream in(path, std::ios::binary);
-  std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  std::string data = ReadBytes(path);
   uint32_t version = 0;
   std::memcpy(&version, &data[8], sizeof(version));
   ASSERT_EQ(version, 16u);
   // `bytes` declared as format `as` loads; returns its options.
   auto options_as = [](std::string bytes, uint32_t as) {
-    std::memcpy(&bytes[8], &as, sizeof(as));
+    SetVersion(as, &bytes);
     const std::string older = TempPath("state_older");
     WriteBytes(older, bytes);
     auto loaded = SlamSystem::Load(older);
