@@ -266,6 +266,23 @@ TEST(SlamSystem, SaveLoadWithParkedObjectsKeepsTracking) {
 // frames and loaded into a new system continues exactly like the original,
 // camera and objects (ids, states, poses, twists, stationarity, cluster and
 // plane events), with the objects' BA and the parked-instance logic on.
+// Writes `bytes` to `path` (replacing it).
+void WriteBytes(const std::string& path, const std::string& bytes) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+}
+
+// The bytes of the file at `path`.
+std::string ReadBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+// Sets the format version of the state file `bytes` (after its 8-byte magic).
+void SetVersion(uint32_t version, std::string* bytes) {
+  std::memcpy(&(*bytes)[8], &version, sizeof(version));
+}
+
 TEST(SlamSystem, SaveLoadResumesObjectsExactly) {
   const Clip& clip = CarsClip();
   const size_t split = 12;
@@ -288,9 +305,7 @@ TEST(SlamSystem, SaveLoadResumesObjectsExactly) {
   const std::string path2 = TempPath("slam_state_objects_again");
   ASSERT_TRUE((*resumed)->Save(path2).ok());
   {
-    std::ifstream a(path, std::ios::binary), b(path2, std::ios::binary);
-    const std::string da((std::istreambuf_iterator<char>(a)), std::istreambuf_iterator<char>());
-    const std::string db((std::istreambuf_iterator<char>(b)), std::istreambuf_iterator<char>());
+    const std::string da = ReadBytes(path), db = ReadBytes(path2);
     size_t first_diff = 0, num_diff = 0;
     for (size_t i = 0; i < std::min(da.size(), db.size()); ++i) {
       if (da[i] != db[i] && num_diff++ == 0) first_diff = i;
@@ -333,14 +348,10 @@ TEST(SlamSystem, LoadRejectsTruncatedObjectState) {
   for (int k = 0; k < 8; ++k) ASSERT_TRUE((*sys)->Process(clip.frames[k]).ok());
   const std::string path = TempPath("state_objects_full");
   ASSERT_TRUE((*sys)->Save(path).ok());
-  std::ifstream in(path, std::ios::binary);
-  const std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string data = ReadBytes(path);
   ASSERT_GT(data.size(), 1000u);
   const std::string cut = TempPath("state_objects_cut");
-  auto write = [&](const std::string& bytes) {
-    std::ofstream out(cut, std::ios::binary | std::ios::trunc);
-    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-  };
+  auto write = [&](const std::string& bytes) { WriteBytes(cut, bytes); };
   // Cuts all over the file, and densely in its tail (the object state).
   std::vector<size_t> sizes;
   for (int k = 1; k < 40; ++k) sizes.push_back(data.size() * k / 40);
@@ -354,8 +365,7 @@ TEST(SlamSystem, LoadRejectsTruncatedObjectState) {
   EXPECT_EQ(SlamSystem::Load(cut).status().code(), absl::StatusCode::kDataLoss);
   // A future version.
   std::string future = data;
-  const uint32_t v = 99;
-  std::memcpy(&future[8], &v, sizeof(v));
+  SetVersion(99, &future);
   write(future);
   EXPECT_EQ(SlamSystem::Load(cut).status().code(), absl::StatusCode::kDataLoss);
   // Byte flips in the tail never crash (a flipped double may still load).
@@ -373,23 +383,6 @@ TEST(SlamSystem, LoadRejectsTruncatedObjectState) {
   std::remove(path.c_str());
 }
 
-// Writes `bytes` to `path` (replacing it).
-void WriteBytes(const std::string& path, const std::string& bytes) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-}
-
-// The bytes of the file at `path`.
-std::string ReadBytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-}
-
-// Sets the format version of the state file `bytes` (after its 8-byte magic).
-void SetVersion(uint32_t version, std::string* bytes) {
-  std::memcpy(&(*bytes)[8], &version, sizeof(version));
-}
-
 // The offset of SlamOptions::dense_keyframes in a state file (format 9+): the
 // first byte where two fresh sessions that differ only in it differ.
 size_t DenseKeyFramesOffset(SessionConfig config) {
@@ -400,8 +393,7 @@ size_t DenseKeyFramesOffset(SessionConfig config) {
     EXPECT_TRUE(sys.ok());
     const std::string path = TempPath("state_dense_offset");
     EXPECT_TRUE((*sys)->Save(path).ok());
-    std::ifstream in(path, std::ios::binary);
-    bytes[dense].assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    bytes[dense] = ReadBytes(path);
     std::remove(path.c_str());
   }
   size_t k = 0;
@@ -510,14 +502,12 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   ASSERT_EQ(data[data.size() - 9], '\0');           // "no object stage"
   {
     std::string v9 = data;
-    version = 9;
-    std::memcpy(&v9[8], &version, sizeof(version));
+    SetVersion(9, &v9);
     const std::string path9 = TempPath("state_v9");
     WriteBytes(path9, v9);
     EXPECT_TRUE(SlamSystem::Load(path9).ok());
     // Declared as format 10, the same bytes lack the block: rejected.
-    version = 10;
-    std::memcpy(&v9[8], &version, sizeof(version));
+    SetVersion(10, &v9);
     WriteBytes(path9, v9);
     EXPECT_EQ(SlamSystem::Load(path9).status().code(), absl::StatusCode::kDataLoss);
     std::remove(path9.c_str());
@@ -527,16 +517,14 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   data.erase(dense_at, 1);  // format 8 from here on
   {
     std::string v4 = data;
-    version = 4;
-    std::memcpy(&v4[8], &version, sizeof(version));
+    SetVersion(4, &v4);
     const std::string path4 = TempPath("state_v4_declared");
     WriteBytes(path4, v4);
     EXPECT_TRUE(SlamSystem::Load(path4).ok());
     std::remove(path4.c_str());
   }
   std::string v3 = data.substr(0, data.size() - 9) + data.substr(data.size() - 8);
-  version = 3;
-  std::memcpy(&v3[8], &version, sizeof(version));
+  SetVersion(3, &v3);
   const std::string path3 = TempPath("state_v3");
   WriteBytes(path3, v3);
   auto loaded = SlamSystem::Load(path3);
@@ -548,8 +536,7 @@ TEST(SlamSystem, LoadsFormatVersion3) {
     EXPECT_TRUE(SamePose(a->world_from_camera, b->world_from_camera)) << "frame " << k;
   }
   // The same bytes declared as format 4 lack the flag: rejected.
-  version = 4;
-  std::memcpy(&v3[8], &version, sizeof(version));
+  SetVersion(4, &v3);
   WriteBytes(path3, v3);
   EXPECT_EQ(SlamSystem::Load(path3).status().code(), absl::StatusCode::kDataLoss);
   std::remove(path.c_str());
@@ -571,12 +558,8 @@ TEST(SlamSystem, LoadRejectsMissingAndCorruptFiles) {
   for (int k = 0; k < 4; ++k) ASSERT_TRUE((*sys)->Process(clip.frames[k]).ok());
   const std::string path = TempPath("state_full");
   ASSERT_TRUE((*sys)->Save(path).ok());
-  std::ifstream in(path, std::ios::binary);
-  std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  {
-    std::ofstream out(garbage, std::ios::binary);
-    out.write(data.data(), static_cast<std::streamsize>(data.size() / 2));
-  }
+  const std::string data = ReadBytes(path);
+  WriteBytes(garbage, data.substr(0, data.size() / 2));
   EXPECT_EQ(SlamSystem::Load(garbage).status().code(), absl::StatusCode::kDataLoss);
   std::remove(garbage.c_str());
   std::remove(path.c_str());
