@@ -242,6 +242,12 @@ absl::Status ObjectTrackerOptions::Validate() const {
         "object tracker needs young_turn_rate_sigma_radps >= 0, young_turn_prior_poses >= 0 and "
         "starting_turn_prior_poses >= 0");
   }
+  if (!(young_turn_release_sigmas >= 0.0) || young_turn_release_min_inliers < 0 ||
+      !(young_turn_release_max_curvature_per_m > 0.0)) {
+    return absl::InvalidArgumentError(
+        "object tracker needs young_turn_release_sigmas >= 0, young_turn_release_min_inliers >= 0 "
+        "and young_turn_release_max_curvature_per_m > 0");
+  }
   if (!(approaching_disparity_noise_scale > 0.0 && approaching_disparity_noise_scale <= 1.0) ||
       !(approaching_growth_time_s >= 0.0)) {
     return absl::InvalidArgumentError(
@@ -803,6 +809,27 @@ TwistPrior ObjectTracker::TurnPrior(const joints::Joint& joint,
   return prior;
 }
 
+bool ObjectTracker::ShowsAYoungTurn(const TrackedObject& o, const TwistEstimate& free) const {
+  if (!free.success || !free.covariance_valid ||
+      free.num_inliers < options_.young_turn_release_min_inliers ||
+      o.joint.type() != joints::JointType::kPlanar) {
+    return false;
+  }
+  const Eigen::Vector3d axis = o.joint.world_from_joint().rotation().col(2);
+  const Eigen::Vector3d omega = free.twist.tail<3>();
+  const double rate = axis.dot(omega);  // rad per frame
+  const double variance = axis.dot(free.covariance.bottomRightCorner<3, 3>() * axis);
+  if (!(variance > 0.0) ||
+      std::abs(rate) <= options_.young_turn_release_sigmas * std::sqrt(variance)) {
+    return false;
+  }
+  // The object's origin moves by v + ω × t in a world-frame step.
+  const double speed =
+      (free.twist.head<3>() + omega.cross(o.world_from_object.translation())).norm();
+  constexpr double kTurnSlackRad = 0.01;
+  return std::abs(rate) <= options_.young_turn_release_max_curvature_per_m * speed + kTurnSlackRad;
+}
+
 Vector6d ObjectTracker::FirstStepSeed(const FrameContext& ctx,
                                       const ObjectDetectionInput& det,
                                       const TrackedObject& o) const {
@@ -946,24 +973,38 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   const Matrix6d projector = o->joint.WorldProjector();
   // The young object's turn prior, also for one pulling away from a stop:
   // it is seen as poorly as a new one.
-  const bool young = static_cast<int>(o->history.size()) < options_.young_turn_prior_poses ||
-                     (!o->stationary && HeldWithin(*o, options_.starting_turn_prior_poses));
+  const bool young_by_age = static_cast<int>(o->history.size()) < options_.young_turn_prior_poses;
+  const bool young =
+      young_by_age || (!o->stationary && HeldWithin(*o, options_.starting_turn_prior_poses));
   const TwistPrior turn_prior =
       young ? TurnPrior(o->joint, ctx.dt, options_.young_turn_rate_sigma_radps)
             : TurnPrior(o->joint, ctx.dt);
+  const bool may_release = young_by_age && turn_prior.sqrt_information.rows() > 0 &&
+                           options_.young_turn_release_sigmas > 0.0;
+  auto solve = [&](const Vector6d& start, const TwistPrior& prior) {
+    return EstimateObjectTwist(camera_,
+                               f.camera_from_world,
+                               o->world_from_object,
+                               projector,
+                               obs,
+                               start,
+                               options_.estimator,
+                               prior);
+  };
   // The constrained twist from the current observations, when there are
-  // enough of them and the solver converged.
+  // enough of them and the solver converged; a young object's step free of
+  // its turn prior when that shows a turn clearly.
   auto estimate = [&](const Vector6d& start) -> std::optional<TwistEstimate> {
     if (static_cast<int>(obs.size()) < options_.min_points_to_track) return std::nullopt;
-    absl::StatusOr<TwistEstimate> e = EstimateObjectTwist(camera_,
-                                                          f.camera_from_world,
-                                                          o->world_from_object,
-                                                          projector,
-                                                          obs,
-                                                          start,
-                                                          options_.estimator,
-                                                          turn_prior);
+    absl::StatusOr<TwistEstimate> e = solve(start, turn_prior);
     if (!e.ok() || !e->success) return std::nullopt;
+    if (may_release) {
+      absl::StatusOr<TwistEstimate> free = solve(start, TwistPrior());
+      if (free.ok() && ShowsAYoungTurn(*o, *free)) {
+        ++stats_.young_turns_released;
+        return *std::move(free);
+      }
+    }
     return *std::move(e);
   };
   std::optional<TwistEstimate> est = estimate(initial);

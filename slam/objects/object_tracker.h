@@ -480,6 +480,21 @@ struct ObjectTrackerOptions {
   // ~30 deg; the constant-velocity filter then predicted the spin. 0: off.
   double young_turn_rate_sigma_radps = 0.1;
   int young_turn_prior_poses = 3;
+  // A young object's step (by age, young_turn_prior_poses) is estimated
+  // without that prior too, and the free estimate is taken when it shows a
+  // turn clearly: its rate of turn about the joint's axis exceeds
+  // young_turn_release_sigmas of its own standard deviations, it rests on
+  // at least young_turn_release_min_inliers inliers (its covariance holds no
+  // structure noise and is over-confident on a few points), and it turns no
+  // tighter than young_turn_release_max_curvature_per_m (rate of turn <=
+  // curvature · the origin's speed + 0.01 rad per frame). A car first seen
+  // in a turn was otherwise held back to a third of its turn in its first
+  // step (docs/objects.md §56). A car pulling away from a stop keeps its
+  // prior (starting_turn_prior_poses): seen from behind, its free steps
+  // passed this test on noise. 0 sigmas: off.
+  double young_turn_release_sigmas = 6.0;
+  int young_turn_release_min_inliers = 20;
+  double young_turn_release_max_curvature_per_m = 0.3;
   // The young prior also holds for the first starting_turn_prior_poses
   // poses of an object that moves again after the tracker held it
   // stationary: a car pulling away from a stop, seen from behind, barely
@@ -548,6 +563,9 @@ struct ObjectTrackerStats {
   int removed = 0;
   int rejected = 0;         // steps that failed the filter's gate (coasted or lost)
   int manoeuvres = 0;       // steps that passed the gate only as a change of the rate of turn
+  // Young steps' estimates taken free of the turn prior (a step is
+  // estimated once or twice; young_turn_release_sigmas).
+  int young_turns_released = 0;
   int filter_restarts = 0;  // refused steps taken as measured (restart_filter_after_refusals)
 };
 
@@ -605,6 +623,9 @@ class ObjectTracker {
              const ObjectDetectionInput& det,
              TrackedObject* object,
              bool seed_from_detection);
+  // Whether a young object's step estimated without the turn prior shows a
+  // turn clearly (ObjectTrackerOptions::young_turn_release_sigmas).
+  bool ShowsAYoungTurn(const TrackedObject& object, const TwistEstimate& free) const;
   // The predicted first step of a new object (seed_first_step_from_box).
   geometry::Vector6d FirstStepSeed(const FrameContext& ctx,
                                    const ObjectDetectionInput& det,
