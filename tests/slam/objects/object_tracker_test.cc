@@ -1172,6 +1172,39 @@ TEST(ObjectTracker, ACarFirstSeenInATurnIsFollowedFromItsFirstStep) {
   EXPECT_LT(worst[1], 0.5 * worst[0]);
 }
 
+// The release's guards, on the turning car above (seed 71): a car of 15
+// points (fewer than young_turn_release_min_inliers) and a car that turns at
+// 4° per frame on the spot (as a spin from noise would; the tracker's origin,
+// off the car's, moves by the turn alone) keep the prior; each is released
+// once its guard is loosened, so it is the guard that holds it.
+TEST(ObjectTracker, AYoungTurnIsReleasedOnlyOnEnoughPointsAndACarsCurvature) {
+  auto released = [](int num_points, double forward_m, const ObjectTrackerOptions& options) {
+    CarSequence seq(0.5, 71, 4.0, num_points, 14.0);
+    seq.set_heading(-1.0);
+    ObjectTracker tracker(seq.camera(), options);
+    Vector6d turning;  // per frame, in the car's frame (joint axes)
+    turning << 0.0, forward_m, 0.0, 0.0, 0.0, 0.07;
+    seq.set_step(seq.world_from_object().Adjoint() * turning);
+    int count = 0;
+    for (int i = 0; i < 4; ++i) {
+      const auto results = tracker.Process(seq.Next(11, true));
+      EXPECT_TRUE(results.ok());
+      count += tracker.last_stats().young_turns_released;
+    }
+    return count;
+  };
+  const ObjectTrackerOptions defaults;
+  EXPECT_GE(released(60, 0.6, defaults), 1);
+  EXPECT_EQ(released(15, 0.6, defaults), 0);
+  ObjectTrackerOptions fewer = defaults;
+  fewer.young_turn_release_min_inliers = 8;
+  EXPECT_GE(released(15, 0.6, fewer), 1);
+  EXPECT_EQ(released(60, 0.0, defaults), 0);
+  ObjectTrackerOptions tighter = defaults;
+  tighter.young_turn_release_max_curvature_per_m = 10.0;
+  EXPECT_GE(released(60, 0.0, tighter), 1);
+}
+
 // The same for a car seen from behind that pulls away after the tracker held
 // it stationary (ObjectTrackerOptions::starting_turn_prior_poses): its first
 // steps from rest show its yaw as poorly as a new car's.
