@@ -488,8 +488,8 @@ struct ObjectTrackerOptions {
   // structure noise and is over-confident on a few points), and it turns no
   // tighter than young_turn_release_max_curvature_per_m (rate of turn <=
   // curvature · the origin's speed + 0.01 rad per frame). A car first seen
-  // in a turn was otherwise held back to a third of its turn in its first
-  // step (docs/objects.md §56). A car pulling away from a stop keeps its
+  // in a turn was otherwise held back to a third of its turn, or none of
+  // it, in its first step (docs/objects.md §56). A car pulling away from a stop keeps its
   // prior (starting_turn_prior_poses): seen from behind, its free steps
   // passed this test on noise. 0 sigmas: off.
   double young_turn_release_sigmas = 6.0;

@@ -1128,8 +1128,8 @@ TEST(ObjectTracker, AYoungCarSeenFromBehindDoesNotSpin) {
 // A new car first seen in a turn (4° per frame, as `turning_traffic`'s), 14 m
 // away and seen obliquely: its points show the turn clearly, and its first
 // steps are estimated free of the young car's zero-turn prior
-// (young_turn_release_sigmas); with the prior alone the first step turned by
-// a third of the truth (docs/objects.md §56).
+// (young_turn_release_sigmas); with the prior alone its steps lag the turn
+// by up to 3° (docs/objects.md §56).
 TEST(ObjectTracker, ACarFirstSeenInATurnIsFollowedFromItsFirstStep) {
   double worst[2] = {0.0, 0.0};
   int released[2] = {0, 0};
