@@ -489,9 +489,9 @@ struct ObjectTrackerOptions {
   // tighter than young_turn_release_max_curvature_per_m (rate of turn <=
   // curvature · the origin's speed + 0.01 rad per frame). A car first seen
   // in a turn was otherwise held back to a third of its turn, or none of
-  // it, in its first step (docs/objects.md §56). A car pulling away from a stop keeps its
-  // prior (starting_turn_prior_poses): seen from behind, its free steps
-  // passed this test on noise. 0 sigmas: off.
+  // it, in its first step (docs/objects.md §56). A car pulling away from a
+  // stop keeps its prior (starting_turn_prior_poses): seen from behind, its
+  // free steps passed this test on noise. 0 sigmas: off.
   double young_turn_release_sigmas = 6.0;
   int young_turn_release_min_inliers = 20;
   double young_turn_release_max_curvature_per_m = 0.3;

@@ -262,10 +262,6 @@ TEST(SlamSystem, SaveLoadWithParkedObjectsKeepsTracking) {
   std::remove(path.c_str());
 }
 
-// The object stage is persisted (state format 4): a session saved after N
-// frames and loaded into a new system continues exactly like the original,
-// camera and objects (ids, states, poses, twists, stationarity, cluster and
-// plane events), with the objects' BA and the parked-instance logic on.
 // Writes `bytes` to `path` (replacing it).
 void WriteBytes(const std::string& path, const std::string& bytes) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
@@ -283,6 +279,10 @@ void SetVersion(uint32_t version, std::string* bytes) {
   std::memcpy(&(*bytes)[8], &version, sizeof(version));
 }
 
+// The object stage is persisted (state format 4): a session saved after N
+// frames and loaded into a new system continues exactly like the original,
+// camera and objects (ids, states, poses, twists, stationarity, cluster and
+// plane events), with the objects' BA and the parked-instance logic on.
 TEST(SlamSystem, SaveLoadResumesObjectsExactly) {
   const Clip& clip = CarsClip();
   const size_t split = 12;
