@@ -998,7 +998,8 @@ bool ObjectTracker::Track(const FrameContext& ctx,
     if (static_cast<int>(obs.size()) < options_.min_points_to_track) return std::nullopt;
     absl::StatusOr<TwistEstimate> e = solve(start, turn_prior);
     if (!e.ok() || !e->success) return std::nullopt;
-    if (may_release) {
+    // (Fewer observations than the release needs inliers: no free solve.)
+    if (may_release && static_cast<int>(obs.size()) >= options_.young_turn_release_min_inliers) {
       absl::StatusOr<TwistEstimate> free = solve(start, TwistPrior());
       if (free.ok() && ShowsAYoungTurn(*o, *free)) {
         ++stats_.young_turns_released;
