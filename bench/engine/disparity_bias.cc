@@ -2,9 +2,11 @@
 // synthetic generator. Diagnostic tool, prints only.
 //
 //   disparity_bias [--scenario static_street] [--frames 10] [--seed 1] [--noise 1.5]
-//                  [--subpixel sad|ssd] [--slam 1]
+//                  [--subpixel sad|ssd] [--slam 1] [--disc 1]
 // (--slam 1 runs the whole engine with its default options on the clip and
-// prints ATE, RPE and the path length ratio instead.)
+// prints ATE, RPE and the path length ratio instead. --disc 1 prints the
+// errors of every stereo match against the true disparity at the keypoint's
+// pixel, split by where the keypoint sits: docs/math.md sections 17, 19.)
 //
 // For every stereo-matched left keypoint whose neighbourhood (the SAD window
 // at its level plus a margin) lies on one plane (disparity affine in the
@@ -73,6 +75,96 @@ double BruteForceDisparity(
   return best_d;
 }
 
+// Where a stereo keypoint sits against the depth buffer around it.
+enum BlockKind {
+  kFlat = 0,      // the true disparity over its block is affine to 0.5 px
+  kNearSide = 1,  // a discontinuity, the keypoint's pixel on its nearer side
+  kFarSide = 2,   // a discontinuity, the keypoint's pixel on its farther side
+};
+
+// Error of every stereo match against the true disparity at its keypoint's
+// pixel, by block kind and true disparity band: count, mean of the errors
+// within 1 px × level scale, share of larger ("gross") errors and their
+// median. Sky counts as disparity 0.
+void PrintDiscontinuityErrors(const sim::Scenario& sc,
+                              const sim::Renderer& renderer,
+                              const features::OrbExtractor& orb,
+                              const features::StereoMatchOptions& smo,
+                              int frames) {
+  constexpr int kBands = 3;  // true disparity < 12, 12-24, >= 24 px
+  constexpr int kKinds = 3;
+  const double bf = sc.camera.bf();
+  int inl[kKinds][kBands] = {};
+  double sum[kKinds][kBands] = {};
+  std::vector<double> gross[kKinds][kBands];
+  for (int f = 0; f < frames; ++f) {
+    const sim::StereoRender r = sim::RenderScenarioFrame(renderer, sc, f);
+    std::vector<cv::KeyPoint> kl, kr;
+    cv::Mat dl, dr;
+    std::vector<cv::Mat> ll, lr;
+    orb.Extract(r.left, cv::Mat(), &kl, &dl, &ll);
+    orb.Extract(r.right, cv::Mat(), &kr, &dr, &lr);
+    const features::StereoMatchResult st =
+        features::MatchStereo(sc.camera, orb.pyramid(), kl, dl, kr, dr, ll, lr, smo);
+    auto disparity_at = [&](int x, int y) {
+      const float z = r.depth.at<float>(y, x);
+      return std::isfinite(z) && z > 0.f ? bf / z : 0.0;
+    };
+    for (size_t q = 0; q < kl.size(); ++q) {
+      if (st.depth[q] <= 0.f) continue;
+      const int cx = static_cast<int>(std::lround(kl[q].pt.x));
+      const int cy = static_cast<int>(std::lround(kl[q].pt.y));
+      const double truth = disparity_at(cx, cy);
+      if (truth <= 0.0) continue;
+      const double s = orb.pyramid().scale[kl[q].octave];
+      const int radius = static_cast<int>(std::ceil((smo.sad_half_window + 1) * s));
+      BlockKind kind = kFlat;
+      if (!sim::PlanarDisparity(r.depth, bf, kl[q].pt.x, kl[q].pt.y, radius, 0.5)) {
+        double lo = truth, hi = truth;
+        for (int y = std::max(0, cy - radius); y <= std::min(r.depth.rows - 1, cy + radius); ++y) {
+          for (int x = std::max(0, cx - radius); x <= std::min(r.depth.cols - 1, cx + radius);
+               ++x) {
+            const double d = disparity_at(x, y);
+            lo = std::min(lo, d);
+            hi = std::max(hi, d);
+          }
+        }
+        kind = truth > 0.5 * (lo + hi) ? kNearSide : kFarSide;
+      }
+      const int band = truth < 12.0 ? 0 : (truth < 24.0 ? 1 : 2);
+      const double e = kl[q].pt.x - st.u_right[q] - truth;
+      if (std::abs(e) > s) {
+        gross[kind][band].push_back(e);
+      } else {
+        sum[kind][band] += e;
+        ++inl[kind][band];
+      }
+    }
+  }
+  const char* bands[kBands] = {"< 12", "12-24", ">= 24"};
+  std::printf(
+      "true disparity | flat | discontinuity, near side | discontinuity, far side\n"
+      "  each: n / mean error within 1 px x level scale / share beyond / median beyond (px)\n");
+  for (int b = 0; b < kBands; ++b) {
+    std::printf("%-6s", bands[b]);
+    for (int k = 0; k < kKinds; ++k) {
+      std::vector<double>& g = gross[k][b];
+      const size_t n = inl[k][b] + g.size();
+      double median = 0.0;
+      if (!g.empty()) {
+        std::nth_element(g.begin(), g.begin() + g.size() / 2, g.end());
+        median = g[g.size() / 2];
+      }
+      std::printf(" | %6zu %+7.3f %5.1f%% %+6.1f",
+                  n,
+                  inl[k][b] ? sum[k][b] / inl[k][b] : 0.0,
+                  n ? 100.0 * g.size() / n : 0.0,
+                  median);
+    }
+    std::printf("\n");
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -81,6 +173,7 @@ int main(int argc, char** argv) {
   int seed = 1;
   double noise = 1.5;
   bool slam = false;
+  bool disc = false;
   features::StereoMatchOptions smo;
   for (int i = 1; i + 1 < argc; i += 2) {
     if (!std::strcmp(argv[i], "--scenario")) scenario = argv[i + 1];
@@ -88,6 +181,7 @@ int main(int argc, char** argv) {
     if (!std::strcmp(argv[i], "--seed")) seed = std::atoi(argv[i + 1]);
     if (!std::strcmp(argv[i], "--noise")) noise = std::atof(argv[i + 1]);
     if (!std::strcmp(argv[i], "--slam")) slam = std::atoi(argv[i + 1]) != 0;
+    if (!std::strcmp(argv[i], "--disc")) disc = std::atoi(argv[i + 1]) != 0;
     if (!std::strcmp(argv[i], "--subpixel")) {
       smo.subpixel = std::strcmp(argv[i + 1], "ssd") == 0
                          ? features::SubpixelMethod::kSsdGaussNewton
@@ -134,6 +228,10 @@ int main(int argc, char** argv) {
     return 0;
   }
   const features::OrbExtractor orb(features::OrbOptions{});
+  if (disc) {
+    PrintDiscontinuityErrors(*sc, renderer, orb, smo, frames);
+    return 0;
+  }
   const int L = orb.options().num_levels;
   constexpr int kBins = 4;
   std::vector<std::vector<double>> err(L);
