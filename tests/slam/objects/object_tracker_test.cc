@@ -1125,6 +1125,18 @@ TEST(ObjectTracker, AYoungCarSeenFromBehindDoesNotSpin) {
   EXPECT_EQ(released, 0);
 }
 
+// The turning car of the young-turn release tests: 4 m aside and 14 m ahead,
+// seen obliquely (heading −1 rad), turning by 0.07 rad (4°) per frame while
+// it moves `forward_m` per frame along its own length.
+CarSequence TurningCar(uint64_t seed, int num_points, double forward_m) {
+  CarSequence seq(0.5, seed, 4.0, num_points, 14.0);
+  seq.set_heading(-1.0);
+  Vector6d turning;  // per frame, in the car's frame (joint axes)
+  turning << 0.0, forward_m, 0.0, 0.0, 0.0, 0.07;
+  seq.set_step(seq.world_from_object().Adjoint() * turning);
+  return seq;
+}
+
 // A new car first seen in a turn (4° per frame, as `turning_traffic`'s), 14 m
 // away and seen obliquely: its points show the turn clearly, and its first
 // steps are estimated free of the young car's zero-turn prior
@@ -1135,14 +1147,10 @@ TEST(ObjectTracker, ACarFirstSeenInATurnIsFollowedFromItsFirstStep) {
   int released[2] = {0, 0};
   for (int release : {1, 0}) {
     for (uint64_t seed = 71; seed < 77; ++seed) {
-      CarSequence seq(0.5, seed, 4.0, 60, 14.0);
-      seq.set_heading(-1.0);
+      CarSequence seq = TurningCar(seed, 60, 0.6);
       ObjectTrackerOptions options;
       if (!release) options.young_turn_release_sigmas = 0.0;
       ObjectTracker tracker(seq.camera(), options);
-      Vector6d turning;  // per frame, in the car's frame (joint axes)
-      turning << 0.0, 0.6, 0.0, 0.0, 0.0, 0.07;
-      seq.set_step(seq.world_from_object().Adjoint() * turning);
       SE3d est_prev, gt_prev;
       for (int i = 0; i < 5; ++i) {
         const auto results = tracker.Process(seq.Next(11, true));
@@ -1179,12 +1187,8 @@ TEST(ObjectTracker, ACarFirstSeenInATurnIsFollowedFromItsFirstStep) {
 // once its guard is loosened, so it is the guard that holds it.
 TEST(ObjectTracker, AYoungTurnIsReleasedOnlyOnEnoughPointsAndACarsCurvature) {
   auto released = [](int num_points, double forward_m, const ObjectTrackerOptions& options) {
-    CarSequence seq(0.5, 71, 4.0, num_points, 14.0);
-    seq.set_heading(-1.0);
+    CarSequence seq = TurningCar(71, num_points, forward_m);
     ObjectTracker tracker(seq.camera(), options);
-    Vector6d turning;  // per frame, in the car's frame (joint axes)
-    turning << 0.0, forward_m, 0.0, 0.0, 0.0, 0.07;
-    seq.set_step(seq.world_from_object().Adjoint() * turning);
     int count = 0;
     for (int i = 0; i < 4; ++i) {
       const auto results = tracker.Process(seq.Next(11, true));
