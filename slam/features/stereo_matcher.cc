@@ -184,7 +184,7 @@ StereoMatchResult MatchStereo(const geometry::StereoCamera& camera,
       delta = static_cast<float>(x - (sur + best_inc));
     }
     const float ur = (static_cast<float>(sur + best_inc) + delta + 0.5f) * sx - 0.5f;
-    float disparity = ul - ur;
+    float disparity = ul - ur + static_cast<float>(options.disparity_offset_px);
     if (disparity < 0.f || disparity >= max_disparity) continue;
     if (disparity <= 0.f) disparity = 0.01f;
     result.u_right[i] = ul - disparity;

@@ -43,6 +43,10 @@ struct StereoMatchOptions {
   double sad_median_factor = 2.1;    // reject SAD > factor × median SAD
   SubpixelMethod subpixel = SubpixelMethod::kSadParabola;
   int gauss_newton_iterations = 5;
+  // The rig's correction added to every disparity (SlamOptions::
+  // disparity_offset_px, docs/math.md §21); matches whose corrected
+  // disparity is negative are dropped.
+  double disparity_offset_px = 0.0;
 };
 
 // Half size, in level-0 pixels, of the block the matcher refines a match

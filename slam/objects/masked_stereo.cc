@@ -10,13 +10,15 @@
 
 namespace twist::objects {
 
-std::optional<double> MaskedDisparity(const cv::Mat& left,
-                                      const cv::Mat& right,
-                                      const cv::Mat& mask,
-                                      const Eigen::Vector2d& uv,
-                                      double initial_disparity,
-                                      double half_window,
-                                      const MaskedStereoOptions& options) {
+namespace {
+
+std::optional<double> MaskedDisparityUncorrected(const cv::Mat& left,
+                                                 const cv::Mat& right,
+                                                 const cv::Mat& mask,
+                                                 const Eigen::Vector2d& uv,
+                                                 double initial_disparity,
+                                                 double half_window,
+                                                 const MaskedStereoOptions& options) {
   if (left.empty() || right.empty() || mask.empty() || left.type() != CV_8UC1 ||
       right.type() != CV_8UC1 || mask.type() != CV_8UC1 || left.size() != right.size() ||
       left.size() != mask.size() || !std::isfinite(initial_disparity)) {
@@ -168,6 +170,24 @@ std::optional<double> MaskedDisparity(const cv::Mat& left,
   d += gx * (uv.x() - cx) + gy * (uv.y() - cy);
   if (std::abs(d - d_int) > 1.0 || !(g > 0.0)) return std::nullopt;
   return d;
+}
+
+}  // namespace
+
+std::optional<double> MaskedDisparity(const cv::Mat& left,
+                                      const cv::Mat& right,
+                                      const cv::Mat& mask,
+                                      const Eigen::Vector2d& uv,
+                                      double initial_disparity,
+                                      double half_window,
+                                      const MaskedStereoOptions& options) {
+  // The search works on the images as they are; the rig's correction is
+  // taken off the (corrected) initial value and added to the result.
+  const double offset = options.disparity_offset_px;
+  const std::optional<double> d = MaskedDisparityUncorrected(
+      left, right, mask, uv, initial_disparity - offset, half_window, options);
+  if (!d) return std::nullopt;
+  return *d + offset;
 }
 
 int RemeasureBesideMask(const cv::Mat& left,

@@ -37,6 +37,10 @@ struct MaskedStereoOptions {
   // Gauss–Newton refinement of the sub-pixel disparity (with gain and
   // offset) after the correlation peak; 0: parabola only.
   int gauss_newton_iterations = 5;
+  // The rig's disparity correction (SlamOptions::disparity_offset_px): the
+  // initial disparity and the result are corrected ones, the search runs on
+  // the images as they are.
+  double disparity_offset_px = 0.0;
 };
 
 // Disparity (level-0 pixels, u_left − u_right) at the pixel nearest to uv,

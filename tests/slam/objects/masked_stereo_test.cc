@@ -91,6 +91,36 @@ TEST(MaskedStereo, ForegroundDisparityWhenTheWindowStraddlesTheBackground) {
   EXPECT_NEAR(UnmaskedDisparity(s, Eigen::Vector2d(110, 60), 12.0, 8), d_fg, 0.1);
 }
 
+// The rig's disparity correction: the initial value and the result are
+// corrected ones, the search the same as without it.
+TEST(MaskedStereo, AddsTheRigsDisparityOffset) {
+  const double d_fg = 12.3;
+  const Synthetic s = MakeScene(d_fg, 4.0, 1.1, -7.0);
+  const Eigen::Vector2d uv(110, 60);
+  const auto plain = MaskedDisparity(s.left, s.right, s.mask, uv, 12.0, 8.0);
+  ASSERT_TRUE(plain.has_value());
+  for (double offset : {0.09, -0.4, 1.7}) {
+    MaskedStereoOptions o;
+    o.disparity_offset_px = offset;
+    const auto corrected = MaskedDisparity(s.left, s.right, s.mask, uv, 12.0 + offset, 8.0, o);
+    ASSERT_TRUE(corrected.has_value()) << offset;
+    EXPECT_NEAR(*corrected, *plain + offset, 1e-9) << offset;
+  }
+  // RemeasureBesideMask's depths follow: bf / corrected disparity.
+  cv::Mat dynamic = s.mask.clone();
+  std::vector<cv::KeyPoint> kps = {cv::KeyPoint(143.f, 60.f, 7.f, -1.f, 0.f, 0)};
+  const double bf = 100.0, offset = 0.25;
+  std::vector<float> u_right = {static_cast<float>(143.0 - 4.0 - offset)}, depth = {1.f};
+  MaskedStereoOptions o;
+  o.disparity_offset_px = offset;
+  ASSERT_EQ(RemeasureBesideMask(s.left, s.right, dynamic, 8, kps, {8.0}, bf, &u_right, &depth, o),
+            1);
+  ASSERT_GT(u_right[0], 0.f);
+  const double d = 143.0 - u_right[0];
+  EXPECT_NEAR(d, 4.0 + offset, 0.1);
+  EXPECT_NEAR(depth[0], bf / d, 1e-3);
+}
+
 TEST(MaskedStereo, RejectsWhatItCannotMeasure) {
   const Synthetic s = MakeScene(12.3, 4.0, 1.0, 0.0);
   // Outside the mask entirely: no pixels.
