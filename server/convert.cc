@@ -343,6 +343,12 @@ absl::Status ApplyOptions(const pb::SlamOptions& in, SlamOptions* options) {
     options->extra_camera_keypoints = in.extra_camera_keypoints();
   }
   if (in.has_stereo_by_point_depth()) options->stereo_by_point_depth = in.stereo_by_point_depth();
+  if (in.has_disparity_offset_px()) {
+    if (!Finite(in.disparity_offset_px())) {
+      return absl::InvalidArgumentError("options.disparity_offset_px is not finite");
+    }
+    options->disparity_offset_px = in.disparity_offset_px();
+  }
   return absl::OkStatus();
 }
 
@@ -368,6 +374,7 @@ void ToProto(const SlamOptions& options, pb::SlamOptions* out) {
   out->set_dense_keyframes(options.dense_keyframes);
   out->set_extra_camera_keypoints(options.extra_camera_keypoints);
   out->set_stereo_by_point_depth(options.stereo_by_point_depth);
+  out->set_disparity_offset_px(options.disparity_offset_px);
 }
 
 void ToProto(const geometry::StereoCamera& camera, pb::StereoCalibration* out) {

@@ -80,6 +80,7 @@ pb::SessionConfig SessionConfigToProto(const SessionConfig& config) {
   po->set_dense_keyframes(o.dense_keyframes);
   po->set_extra_camera_keypoints(o.extra_camera_keypoints);
   po->set_stereo_by_point_depth(o.stereo_by_point_depth);
+  po->set_disparity_offset_px(o.disparity_offset_px);
   return out;
 }
 

@@ -26,9 +26,17 @@ namespace {
 
 using geometry::SE3d;
 
+// Masked stereo with the rig's disparity correction.
+objects::MaskedStereoOptions MaskedStereoOptionsFrom(const SlamOptions& o) {
+  objects::MaskedStereoOptions m;
+  m.disparity_offset_px = o.disparity_offset_px;
+  return m;
+}
+
 objects::ObjectTrackerOptions TrackerOptionsFrom(const SlamOptions& o) {
   objects::ObjectTrackerOptions t;
   t.constrained = o.constrain_objects;
+  t.masked_stereo_options = MaskedStereoOptionsFrom(o);
   return t;
 }
 
@@ -259,12 +267,14 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
       if (mask == class_masks.end())
         mask = class_masks.emplace(cls, semantic::ClassMask(in.panoptic, cls)).first;
       const Eigen::Vector2d uv(f.keypoints[i].pt.x, f.keypoints[i].pt.y);
-      const std::optional<double> d = objects::MaskedDisparity(in.left,
-                                                               in.right,
-                                                               mask->second,
-                                                               uv,
-                                                               uv.x() - f.u_right[i],
-                                                               options_.plane_stereo_half_px);
+      const std::optional<double> d =
+          objects::MaskedDisparity(in.left,
+                                   in.right,
+                                   mask->second,
+                                   uv,
+                                   uv.x() - f.u_right[i],
+                                   options_.plane_stereo_half_px,
+                                   MaskedStereoOptionsFrom(config_.options));
       if (!d || !(*d > 0.0)) continue;
       p = cam.TriangulateStereo(uv.x(), uv.y(), uv.x() - *d, options_.max_plane_depth_m);
       if (!p) continue;

@@ -35,6 +35,10 @@ absl::Status SlamOptions::Validate() const {
     return bad("max_depth_baselines must be in (1, 1000], got " +
                std::to_string(max_depth_baselines));
   }
+  if (!(disparity_offset_px >= -2.0 && disparity_offset_px <= 2.0)) {
+    return bad("disparity_offset_px must be in [-2, 2], got " +
+               std::to_string(disparity_offset_px));
+  }
   if (mapping_mode != MappingMode::kSynchronous && mapping_mode != MappingMode::kBackground) {
     return bad("mapping_mode must be synchronous or background");
   }

@@ -16,6 +16,7 @@
 #include <thread>
 
 #include "slam/common/timer.h"
+#include "slam/features/disparity_offset.h"
 #include "slam/features/orb_extractor.h"
 #include "slam/features/stereo_matcher.h"
 #include "slam/map/map.h"
@@ -68,7 +69,7 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // 16: + the object tracker's previous camera pose
 // (ObjectTrackerOptions::approaching_growth_time_s). Older files load
 // without: the first frame after loading takes the current camera pose.
-constexpr uint32_t kFormatVersion = 16;
+constexpr uint32_t kFormatVersion = 17;
 // Covisible keyframes in the local BA with dense keyframes (SlamOptions).
 constexpr int kDenseLocalBaKeyFrames = 8;
 // With SlamOptions::extra_camera_keypoints the right image's budget grows by
@@ -219,6 +220,7 @@ void WriteConfig(const SessionConfig& c, system_io::BinaryWriter* w) {
   w->Pod<uint8_t>(o.dense_keyframes);
   w->Pod<uint8_t>(o.extra_camera_keypoints);
   w->Pod<uint8_t>(o.stereo_by_point_depth);
+  w->Pod(o.disparity_offset_px);
 }
 
 absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r, uint32_t version) {
@@ -258,6 +260,7 @@ absl::StatusOr<SessionConfig> ReadConfig(system_io::BinaryReader* r, uint32_t ve
   o.dense_keyframes = version >= 9 && r->Pod<uint8_t>() != 0;
   o.extra_camera_keypoints = version >= 14 && r->Pod<uint8_t>() != 0;
   o.stereo_by_point_depth = version >= 15 && r->Pod<uint8_t>() != 0;
+  o.disparity_offset_px = version >= 17 ? r->Pod<double>() : 0.0;
   if (!r->ok()) return absl::DataLossError("state file truncated in the configuration");
   absl::StatusOr<joints::ClassTable> table = joints::ClassTable::FromText(classes);
   if (!table.ok()) {
@@ -522,6 +525,12 @@ std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
   right_thread.join();
   timings->push_back({"orb", sw.ElapsedMs()});
   sw.Restart();
+  // The rig's disparity correction (SlamOptions::disparity_offset_px) goes
+  // into every stereo measurement: the matcher's and the masked ones.
+  features::StereoMatchOptions match_options;
+  match_options.disparity_offset_px = config_.options.disparity_offset_px;
+  objects::MaskedStereoOptions masked_options;
+  masked_options.disparity_offset_px = config_.options.disparity_offset_px;
   features::StereoMatchResult st = features::MatchStereo(config_.camera,
                                                          orb_.pyramid(),
                                                          f.keypoints,
@@ -529,7 +538,8 @@ std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
                                                          right_kps,
                                                          right_desc,
                                                          left_levels,
-                                                         right_levels);
+                                                         right_levels,
+                                                         match_options);
   if (extra) {
     std::vector<double> half_window(orb_.pyramid().scale.size());
     for (size_t l = 0; l < half_window.size(); ++l) {
@@ -543,7 +553,8 @@ std::shared_ptr<map::FrameFeatures> SlamSystemImpl::ExtractFeatures(
                                  half_window,
                                  config_.camera.bf(),
                                  &st.u_right,
-                                 &st.depth);
+                                 &st.depth,
+                                 masked_options);
   }
   f.u_right = std::move(st.u_right);
   f.depth = std::move(st.depth);

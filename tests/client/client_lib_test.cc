@@ -65,6 +65,7 @@ TEST(SlamConvert, SessionConfigSurvivesTheServerSetup) {
   config.options.dense_keyframes = false;         // not the default
   config.options.extra_camera_keypoints = false;  // not the default
   config.options.stereo_by_point_depth = true;    // not the default
+  config.options.disparity_offset_px = -0.05;     // not the default
   const pb::SessionConfig wire = SessionConfigToProto(config);
   pb::CreateSessionRequest request;
   *request.mutable_config() = wire;
@@ -84,6 +85,7 @@ TEST(SlamConvert, SessionConfigSurvivesTheServerSetup) {
   EXPECT_FALSE(setup->config.options.dense_keyframes);
   EXPECT_FALSE(setup->config.options.extra_camera_keypoints);
   EXPECT_TRUE(setup->config.options.stereo_by_point_depth);
+  EXPECT_EQ(setup->config.options.disparity_offset_px, -0.05);
   EXPECT_EQ(setup->config.classes.ToText(), config.classes.ToText());
   EXPECT_EQ(setup->policy.queue_capacity(), 4);
   EXPECT_EQ(setup->policy.overflow(), pb::OVERFLOW_POLICY_BLOCK);

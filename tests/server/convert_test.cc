@@ -3,6 +3,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <limits>
 #include <opencv2/imgcodecs.hpp>
 
 #include "client/lib/frame_encoding.h"
@@ -259,8 +260,18 @@ TEST(Convert, OptionsOverrideOnlyWhatIsSet) {
   objects.set_dense_keyframes(false);         // the default is true
   objects.set_extra_camera_keypoints(false);  // the default is true
   objects.set_stereo_by_point_depth(true);    // the default is false
+  objects.set_disparity_offset_px(0.09);      // the default is 0
   SlamOptions o2;
   ASSERT_TRUE(ApplyOptions(objects, &o2).ok());
+  EXPECT_EQ(o2.disparity_offset_px, 0.09);
+  pb::SlamOptions back;
+  ToProto(o2, &back);
+  EXPECT_EQ(back.disparity_offset_px(), 0.09);
+  pb::SlamOptions not_finite = objects;
+  not_finite.set_disparity_offset_px(std::numeric_limits<double>::infinity());
+  SlamOptions o3;
+  EXPECT_THAT(std::string(ApplyOptions(not_finite, &o3).message()),
+              HasSubstr("disparity_offset_px is not finite"));
   EXPECT_FALSE(o2.dense_keyframes);
   EXPECT_FALSE(o2.extra_camera_keypoints);
   EXPECT_TRUE(o2.stereo_by_point_depth);

@@ -54,6 +54,20 @@ inline Clip MakeClip(const std::string& scenario_name, int n, double scale, bool
   return clip;
 }
 
+// Every frame of `clip` through `sys`, expecting each tracked; the poses
+// (up to the first frame the engine refuses).
+inline std::vector<geometry::SE3d> TrackClip(SlamSystem& sys, const Clip& clip) {
+  std::vector<geometry::SE3d> est;
+  for (const auto& f : clip.frames) {
+    auto r = sys.Process(f);
+    EXPECT_TRUE(r.ok()) << r.status();
+    if (!r.ok()) break;
+    EXPECT_EQ(r->state, TrackingState::kOk);
+    est.push_back(r->world_from_camera);
+  }
+  return est;
+}
+
 inline const Clip& SmallClip() {
   static const Clip* clip = new Clip(MakeClip("static_street", 30, 0.6));
   return *clip;

@@ -170,12 +170,21 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   EXPECT_TRUE(SlamSystem::Create(config).ok());
   config.options.object_ba_iterations = 0;
   EXPECT_EQ(SlamSystem::Create(config).status().code(), absl::StatusCode::kInvalidArgument);
+  config.options.object_ba_iterations = 3;
+  for (double bad : {2.5, -2.01, std::nan("")}) {
+    config.options.disparity_offset_px = bad;
+    const absl::Status s = SlamSystem::Create(config).status();
+    EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << bad;
+    EXPECT_NE(std::string(s.message()).find("disparity_offset_px"), std::string::npos) << bad;
+  }
+  config.options.disparity_offset_px = 0.0;
   config.options.object_ba_window_frames = 7;
   config.options.object_ba_iterations = 3;
   config.options.parked_objects_static = false;   // not the default
   config.options.dense_keyframes = false;         // not the default
   config.options.extra_camera_keypoints = false;  // not the default
   config.options.stereo_by_point_depth = true;    // not the default
+  config.options.disparity_offset_px = 0.125;     // not the default
   auto sys = SlamSystem::Create(config);
   ASSERT_TRUE(sys.ok());
   ASSERT_TRUE((*sys)->Process(SmallClip().frames[0]).ok());
@@ -189,6 +198,7 @@ TEST(SlamSystem, ObjectOptionsAreValidatedAndSaved) {
   EXPECT_FALSE((*loaded)->config().options.dense_keyframes);
   EXPECT_FALSE((*loaded)->config().options.extra_camera_keypoints);
   EXPECT_TRUE((*loaded)->config().options.stereo_by_point_depth);
+  EXPECT_EQ((*loaded)->config().options.disparity_offset_px, 0.125);
   std::remove(path.c_str());
 }
 
@@ -417,6 +427,9 @@ TEST(SlamSystem, LoadsObjectStateFormat15) {
   ASSERT_TRUE((*first)->Save(path).ok());
   std::string data = ReadBytes(path);
   std::remove(path.c_str());
+  // Format 17's disparity offset (8 bytes after the options' last flag).
+  const size_t dense_at = DenseKeyFramesOffset(clip.config);
+  data.erase(dense_at + 3, sizeof(double));
   const size_t tail = 4 + 8 + 8;  // format 10's block and the trailer
   const size_t added = 1 + 7 * sizeof(double);
   ASSERT_GT(data.size(), tail + added);
@@ -468,7 +481,7 @@ TEST(SlamSystem, LoadsFormatVersion3) {
   std::string data = ReadBytes(path);
   uint32_t version = 0;
   std::memcpy(&version, &data[8], sizeof(version));
-  ASSERT_EQ(version, 16u);
+  ASSERT_EQ(version, 17u);
   // `bytes` declared as format `as` loads; returns its options.
   auto options_as = [](std::string bytes, uint32_t as) {
     SetVersion(as, &bytes);
@@ -479,6 +492,10 @@ TEST(SlamSystem, LoadsFormatVersion3) {
     EXPECT_TRUE(loaded.ok()) << loaded.status();
     return loaded.ok() ? (*loaded)->config().options : SlamOptions();
   };
+  // Format 17 adds SlamOptions::disparity_offset_px, the 8 bytes after
+  // stereo_by_point_depth; without them the file is a format-16 one.
+  data.erase(dense_at + 3, sizeof(double));
+  EXPECT_EQ(options_as(data, 16).disparity_offset_px, 0.0);
   // Format 16 only adds to the object stage: without it the file is a
   // format-15 one.
   EXPECT_FALSE(options_as(data, 15).dense_keyframes);  // loads, its options as saved
@@ -571,13 +588,8 @@ TEST(SlamSystem, BackgroundMappingTracksTheStreet) {
   config.options.mapping_mode = MappingMode::kBackground;
   auto sys = SlamSystem::Create(config);
   ASSERT_TRUE(sys.ok());
-  std::vector<geometry::SE3d> est;
-  for (const auto& f : clip.frames) {
-    auto r = (*sys)->Process(f);
-    ASSERT_TRUE(r.ok());
-    EXPECT_EQ(r->state, TrackingState::kOk);
-    est.push_back(r->world_from_camera);
-  }
+  const std::vector<geometry::SE3d> est = TrackClip(**sys, clip);
+  ASSERT_EQ(est.size(), clip.frames.size());
   // Save waits for the mapping thread, then the file loads.
   const std::string path = TempPath("bg_state");
   ASSERT_TRUE((*sys)->Save(path).ok());
