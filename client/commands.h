@@ -11,5 +11,6 @@ int EvalCommand(int argc, char** argv);      // twistslam eval     (client/cmd_e
 int GenerateCommand(int argc, char** argv);  // twistslam generate (client/cmd_generate.cc)
 int PlotCommand(int argc, char** argv);      // twistslam plot     (client/cmd_plot.cc)
 int MapCommand(int argc, char** argv);       // twistslam map      (client/cmd_map.cc)
+int CalibrateCommand(int argc, char** argv);  // twistslam calibrate (client/cmd_calibrate.cc)
 
 }  // namespace twist::cli

@@ -34,6 +34,11 @@ std::vector<Command> AvailableCommands() {
   commands.push_back({"plot", "PNG pictures of a run (top view, object speeds)",
                       &twist::cli::PlotCommand});
 #endif
+#if defined(TWIST_CMD_CALIBRATE)
+  commands.push_back({"calibrate",
+                      "measure the stereo rig's disparity offset (known motion)",
+                      &twist::cli::CalibrateCommand});
+#endif
 #if defined(TWIST_CMD_MAP)
   commands.push_back({"map", "fetch a session's map from a server to PLY",
                       &twist::cli::MapCommand});

@@ -8,6 +8,8 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -188,6 +190,40 @@ TEST(Cli, ServerRunAndMapEndToEnd) {
   // Shutdown persisted the kept session.
   EXPECT_TRUE(fs::exists(state + "/" + session + "/CURRENT"));
   fs::remove_all(state);
+}
+
+// `twistslam calibrate` on a generated sequence (the renderer's rig has no
+// disparity offset): the offset and the config line; one-line errors.
+TEST(Cli, CalibrateMeasuresTheRigsDisparityOffset) {
+  const std::string out_file = ::testing::TempDir() + "/twist_cli_calibrate.txt";
+  std::string err;
+  ASSERT_EQ(Shell(std::string(TWISTSLAM_BIN) + " calibrate --dataset " + MakeDataset() +
+                      " --format kitti-tracking --seq 0000 >" + out_file,
+                  &err),
+            0)
+      << err;
+  const std::string out = ReadAll(out_file);
+  EXPECT_THAT(out, HasSubstr("disparity offset "));
+  EXPECT_THAT(out, HasSubstr("slam:\n  disparity_offset_px: "));
+  const size_t at = out.find("disparity_offset_px: ");
+  ASSERT_NE(at, std::string::npos);
+  EXPECT_LT(std::abs(std::stod(out.substr(at + 21))), 0.1) << out;
+  // Too few frames left, a missing dataset, a bad format: one line each.
+  EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) + " calibrate --dataset " + MakeDataset() +
+                      " --format kitti-tracking --seq 0000 --first 5",
+                  &err),
+            2);
+  EXPECT_THAT(err, HasSubstr("fewer than 2"));
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1);
+  EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) +
+                      " calibrate --dataset /nonexistent --format kitti-odometry --seq 00",
+                  &err),
+            1);
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1);
+  EXPECT_EQ(
+      Shell(std::string(TWISTSLAM_BIN) + " calibrate --dataset /x --format bogus --seq 00", &err),
+      2);
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1);
 }
 
 TEST(Cli, BadArgumentsAndInputsFailWithOneLine) {
