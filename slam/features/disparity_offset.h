@@ -76,7 +76,7 @@ struct DisparityPairStats {
 };
 
 // Pairs over every (i, i + gap) of `views`; `world_from_camera[i]` is view
-// i's left camera pose (same length as `views`).
+// i's left camera pose (the shorter of the two lists bounds the frames used).
 std::vector<DisparityPair> CollectDisparityPairs(
     const geometry::StereoCamera& camera,
     const ScalePyramid& pyramid,
@@ -89,7 +89,7 @@ struct DisparityOffsetFit {
   int num_pairs = 0;
   bool ok = false;                 // enough pairs (>= 40) for a fit
   double offset_px = 0.0;          // add to measured disparities
-  double standard_error_px = 0.0;  // from four interleaved subsets
+  double standard_error_px = 0.0;  // from four interleaved subsets (0 below 160 pairs)
   double cost = 0.0;               // robust cost at the offset
   double cost_at_zero = 0.0;
 };

@@ -16,7 +16,6 @@
 #include <thread>
 
 #include "slam/common/timer.h"
-#include "slam/features/disparity_offset.h"
 #include "slam/features/orb_extractor.h"
 #include "slam/features/stereo_matcher.h"
 #include "slam/map/map.h"
@@ -69,6 +68,8 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 // 16: + the object tracker's previous camera pose
 // (ObjectTrackerOptions::approaching_growth_time_s). Older files load
 // without: the first frame after loading takes the current camera pose.
+// 17: + SlamOptions::disparity_offset_px (a double after
+// stereo_by_point_depth). Older files load with 0.
 constexpr uint32_t kFormatVersion = 17;
 // Covisible keyframes in the local BA with dense keyframes (SlamOptions).
 constexpr int kDenseLocalBaKeyFrames = 8;
