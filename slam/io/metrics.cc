@@ -82,6 +82,7 @@ absl::StatusOr<CameraMetrics> EvaluateCamera(const std::vector<geometry::SE3d>& 
     m.rpe_t_max = std::max(m.rpe_t_max, et);
     m.rpe_r_deg_max = std::max(m.rpe_r_deg_max, er);
     m.gt_path_length += gt_rel.translation().norm();
+    m.est_path_length += est_rel.translation().norm();
   }
   m.num_pairs = static_cast<int64_t>(m.rpe_t_per_pair.size());
   if (m.num_pairs > 0) {
@@ -401,6 +402,14 @@ std::string FormatCameraTable(const CameraMetrics& m) {
                 m.ate_mean,
                 m.ate_max);
   out += buf;
+  if (m.gt_path_length > 0.0) {
+    std::snprintf(buf,
+                  sizeof(buf),
+                  "  path   %10.5f x the ground truth's (%.2f m)\n",
+                  m.est_path_length / m.gt_path_length,
+                  m.est_path_length);
+    out += buf;
+  }
   return out;
 }
 
@@ -479,6 +488,7 @@ void WriteCameraJson(const CameraMetrics& m, JsonWriter* w) {
   w->Key("num_frames").Int(m.num_frames);
   w->Key("num_pairs").Int(m.num_pairs);
   w->Key("gt_path_length_m").Number(m.gt_path_length);
+  w->Key("est_path_length_m").Number(m.est_path_length);
   w->Key("rpe_t_m_per_frame").Number(m.rpe_t);
   w->Key("rpe_r_deg_per_frame").Number(m.rpe_r_deg);
   w->Key("rpe_t_max_m").Number(m.rpe_t_max);

@@ -56,6 +56,9 @@ struct CameraMetrics {
   double ate_mean = 0;
   double ate_max = 0;
   double gt_path_length = 0;           // m
+  // m, the same sum over the estimate's consecutive poses: est / gt is the
+  // scale error, which the ATE's rigid alignment leaves in (docs/math.md §21)
+  double est_path_length = 0;
   geometry::SE3d alignment;            // gt_from_est used for the ATE
   std::vector<double> rpe_t_per_pair;  // size num_pairs
   std::vector<double> rpe_r_deg_per_pair;

@@ -50,6 +50,22 @@ TEST(CameraMetrics, IdenticalGivesZeros) {
   EXPECT_NEAR(m->rpe_r_deg, 0, 1e-9);
   EXPECT_NEAR(m->ate_rmse, 0, 1e-9);
   EXPECT_GT(m->gt_path_length, 50.0);
+  EXPECT_NEAR(m->est_path_length, m->gt_path_length, 1e-9);
+}
+
+// A scale error (the estimate's every position 1.004 x the truth's, as a
+// rig's disparity offset gives): the path length ratio reads it exactly,
+// while the rigid ATE alignment only spreads it.
+TEST(CameraMetrics, PathLengthReadsAScaleError) {
+  const auto gt = CurvyTrajectory(50);
+  std::vector<SE3d> est = gt;
+  for (SE3d& p : est) p.translation() *= 1.004;
+  auto m = EvaluateCamera(gt, est);
+  ASSERT_TRUE(m.ok());
+  EXPECT_NEAR(m->est_path_length / m->gt_path_length, 1.004, 1e-12);
+  EXPECT_GT(m->ate_rmse, 0.0);
+  EXPECT_NE(FormatCameraTable(*m).find("path      1.00400 x the ground truth's"), std::string::npos)
+      << FormatCameraTable(*m);
 }
 
 TEST(CameraMetrics, ConstantExtraTranslationPerFrame) {
