@@ -123,10 +123,4 @@ DisparityOffsetFit FitDisparityOffset(const geometry::StereoCamera& camera,
 DisparityOffsetFit FitDisparityOffset(const geometry::StereoCamera& camera,
                                       const std::vector<DisparityPair>& pairs);
 
-// The rectified right image moved left by `offset_px` (bicubic; the border
-// replicated), so that disparities measured on it grow by `offset_px`: the
-// rig correction SlamOptions::disparity_offset_px applies. Returns `right`
-// itself when the offset is 0.
-cv::Mat ShiftRightImage(const cv::Mat& right, double offset_px);
-
 }  // namespace twist::features

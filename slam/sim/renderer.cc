@@ -405,4 +405,28 @@ void Renderer::RenderStereo(const Scene& scene,
   }
 }
 
+cv::Mat ShiftRightImage(const cv::Mat& right, double offset_px) {
+  if (offset_px == 0.0 || right.empty()) return right;
+  // dst(x, y) = src(x + offset, y): content moves left, u_right shrinks by
+  // offset, the disparity u_left - u_right grows by it. Keys' cubic (a =
+  // -0.5) with exact weights: cv::warpAffine would round the shift to 1/32 px.
+  const int whole = static_cast<int>(std::floor(offset_px));
+  const double f = offset_px - whole;
+  auto keys = [](double t) {
+    constexpr double a = -0.5;
+    t = std::abs(t);
+    if (t <= 1.0) return (a + 2.0) * t * t * t - (a + 3.0) * t * t + 1.0;
+    if (t < 2.0) return a * t * t * t - 5.0 * a * t * t + 8.0 * a * t - 4.0 * a;
+    return 0.0;
+  };
+  // filter2D correlates: dst(x) = sum_j kernel(j) src(x + j - anchor).
+  const int anchor = std::abs(whole) + 1;
+  cv::Mat kernel = cv::Mat::zeros(1, 2 * anchor + 3, CV_32F);
+  for (int k = -1; k <= 2; ++k)
+    kernel.at<float>(0, anchor + whole + k) = static_cast<float>(keys(f - k));
+  cv::Mat out;
+  cv::filter2D(right, out, -1, kernel, cv::Point(anchor, 0), 0.0, cv::BORDER_REPLICATE);
+  return out;
+}
+
 }  // namespace twist::sim

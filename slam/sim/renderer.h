@@ -127,4 +127,10 @@ class Renderer {
 // world_from_right = world_from_left · right_from_left⁻¹ (right camera at +b·x).
 geometry::SE3d RightFromLeftPose(const geometry::SE3d& world_from_left, double baseline);
 
+// A rendered right image moved left by `offset_px` (Keys' cubic, exact
+// sub-pixel weights; the border replicated): disparities measured on it grow
+// by `offset_px`, so a negative value gives the rendered rig a disparity
+// offset like KITTI's (docs/math.md §21). Returns `right` itself for 0.
+cv::Mat ShiftRightImage(const cv::Mat& right, double offset_px);
+
 }  // namespace twist::sim

@@ -1,5 +1,5 @@
 // The rig's disparity offset (slam/features/disparity_offset.h): the right
-// image shift that simulates or corrects it, the matcher's correction, and
+// image shift that simulates it (sim::ShiftRightImage), the matcher's correction, and
 // the calibration from known motion on rendered frames whose rig is given a
 // known offset (exact ground truth: the renderer's rig has none).
 #include "slam/features/disparity_offset.h"
@@ -35,9 +35,9 @@ cv::Mat WaveImage(double shift) {
 TEST(ShiftRightImage, MovesTheContentLeftByTheOffset) {
   const cv::Mat image = WaveImage(0.0);
   // Zero: the image itself.
-  EXPECT_EQ(ShiftRightImage(image, 0.0).data, image.data);
+  EXPECT_EQ(sim::ShiftRightImage(image, 0.0).data, image.data);
   for (double offset : {1.0, -2.0, 0.3, -0.45, 1.6}) {
-    const cv::Mat shifted = ShiftRightImage(image, offset);
+    const cv::Mat shifted = sim::ShiftRightImage(image, offset);
     ASSERT_EQ(shifted.size(), image.size());
     ASSERT_EQ(shifted.type(), image.type());
     const cv::Mat expected = WaveImage(offset);
@@ -99,7 +99,7 @@ Views RenderViews(const std::vector<double>& rig_offsets, int frames) {
     const sim::StereoRender r = sim::RenderScenarioFrame(renderer, *sc, f);
     for (size_t k = 0; k < rig_offsets.size(); ++k) {
       v.views[k].push_back(ExtractStereoKeypoints(
-          orb, sc->camera, r.left, ShiftRightImage(r.right, rig_offsets[k])));
+          orb, sc->camera, r.left, sim::ShiftRightImage(r.right, rig_offsets[k])));
     }
     v.poses.push_back(sc->WorldFromCamera(f));
   }

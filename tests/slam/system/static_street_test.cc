@@ -53,7 +53,7 @@ double PathLength(const std::vector<geometry::SE3d>& poses) {
 // (docs/math.md §21).
 TEST(SlamSystem, RigDisparityOffsetCalibratedAndCorrected) {
   Clip clip = MakeClip("static_street", 30, 0.6);
-  for (StereoFrame& f : clip.frames) f.right = features::ShiftRightImage(f.right, -0.4);
+  for (StereoFrame& f : clip.frames) f.right = sim::ShiftRightImage(f.right, -0.4);
   const features::OrbExtractor orb(OrbOptionsFrom(clip.config.options));
   std::vector<features::StereoKeypoints> views;
   for (const StereoFrame& f : clip.frames) {
