@@ -116,10 +116,12 @@ std::vector<DisparityPair> CollectDisparityPairs(
         if (keep) {
           const Eigen::Vector3d p_j =
               j_from_i * camera.Backproject(p.uv_i, camera.bf() / (p.disparity_i + off));
+          // The residual of DisparityPairResidual(camera, p, off), from p_j.
           keep = p_j.z() > 0.5 &&
                  (camera.Project(p_j) - p.uv_j).norm() <=
                      options.max_reprojection_px * p.level_scale &&
-                 std::abs(DisparityPairResidual(camera, p, off)) <= options.max_disparity_px;
+                 std::abs(p.disparity_j + off - camera.bf() / p_j.z()) <=
+                     options.max_disparity_px * p.level_scale;
         }
         if (!keep) {
           ++local.rejected;

@@ -239,6 +239,7 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
   std::vector<std::optional<Eigen::Vector3d>> p_world(n);
   const bool masked_planes =
       options_.masked_plane_stereo && !in.right.empty() && !in.panoptic.empty();
+  const objects::MaskedStereoOptions plane_stereo = MaskedStereoOptionsFrom(config_.options);
   std::map<int, cv::Mat> class_masks;  // plane class -> its mask, built on first use
   cv::Mat near_dynamic;  // within plane_dynamic_margin_px of a dynamic segment, on first use
   for (int i = 0; i < n; ++i) {
@@ -267,14 +268,13 @@ absl::StatusOr<ObjectStageOutput> ObjectStage::Process(const ObjectStageInput& i
       if (mask == class_masks.end())
         mask = class_masks.emplace(cls, semantic::ClassMask(in.panoptic, cls)).first;
       const Eigen::Vector2d uv(f.keypoints[i].pt.x, f.keypoints[i].pt.y);
-      const std::optional<double> d =
-          objects::MaskedDisparity(in.left,
-                                   in.right,
-                                   mask->second,
-                                   uv,
-                                   uv.x() - f.u_right[i],
-                                   options_.plane_stereo_half_px,
-                                   MaskedStereoOptionsFrom(config_.options));
+      const std::optional<double> d = objects::MaskedDisparity(in.left,
+                                                               in.right,
+                                                               mask->second,
+                                                               uv,
+                                                               uv.x() - f.u_right[i],
+                                                               options_.plane_stereo_half_px,
+                                                               plane_stereo);
       if (!d || !(*d > 0.0)) continue;
       p = cam.TriangulateStereo(uv.x(), uv.y(), uv.x() - *d, options_.max_plane_depth_m);
       if (!p) continue;
