@@ -1,6 +1,7 @@
 // `twistslam calibrate`: measures a stereo rig's disparity offset from a
-// sequence with ground-truth camera poses (slam/features/disparity_offset.h,
-// docs/math.md §21) and prints the `slam:` line that corrects it.
+// sequence with metric camera poses (the dataset's ground truth, or a
+// trajectory from another sensor: --poses) (slam/features/disparity_offset.h,
+// docs/math.md §21, §22) and prints the `slam:` line that corrects it.
 #include <unistd.h>
 
 #include <cstdio>
@@ -16,6 +17,7 @@
 #include "client/commands.h"
 #include "slam/features/disparity_offset.h"
 #include "slam/io/sequence.h"
+#include "slam/io/trajectory_io.h"
 #include "slam/system/slam_options.h"
 
 namespace twist::cli {
@@ -30,6 +32,11 @@ ArgParser MakeParser() {
   parser.AddValue("seq", "SEQ", "sequence name (06, 0001, ...)");
   parser.AddValue("first", "N", "first frame used", /*required=*/false, "0");
   parser.AddValue("frames", "N", "number of frames used (default: to the end)", false);
+  parser.AddValue("poses",
+                  "FILE",
+                  "metric camera poses to use instead of the ground truth (KITTI format, one "
+                  "line per frame of the sequence, e.g. from GNSS/INS)",
+                  false);
   return parser;
 }
 
@@ -68,9 +75,12 @@ int CalibrateCommand(int argc, char** argv) {
     if (std::strcmp(argv[i], "--help") == 0 || std::strcmp(argv[i], "-h") == 0) {
       std::cout << parser.Usage()
                 << "\nEvery stereo keypoint matched between two frames 1-5 apart must have\n"
-                   "depths that agree under the ground-truth motion; the disparity offset\n"
-                   "that makes them agree best is the rig's correction\n"
-                   "(slam: disparity_offset_px). docs/math.md section 21.\n";
+                   "depths that agree under the true motion; the disparity offset that\n"
+                   "makes them agree best is the rig's correction (slam:\n"
+                   "disparity_offset_px). The motion must be metric: the dataset's ground\n"
+                   "truth, or --poses from another sensor. The engine's own trajectory will\n"
+                   "not do (its scale is what the offset distorts). docs/math.md sections\n"
+                   "21 and 22.\n";
       return 0;
     }
   }
@@ -90,13 +100,24 @@ int CalibrateCommand(int argc, char** argv) {
       io::OpenSequence(args->Get("dataset"), *format, args->Get("seq"));
   if (!reader.ok()) return Fail(kCommand, std::string(reader.status().message()), 1);
   const io::SequenceReader& seq = **reader;
-  if (!seq.has_gt_poses()) {
+  const std::string poses_path = args->Get("poses");
+  absl::StatusOr<std::vector<geometry::SE3d>> given_poses = std::vector<geometry::SE3d>();
+  if (!poses_path.empty()) given_poses = io::ReadKittiPoses(poses_path);
+  if (!given_poses.ok()) return Fail(kCommand, std::string(given_poses.status().message()), 1);
+  if (!poses_path.empty() && static_cast<int64_t>(given_poses->size()) != seq.size()) {
     return Fail(kCommand,
-                "the sequence has no ground-truth poses (poses/" + args->Get("seq") +
-                    ".txt): calibration needs the true camera motion",
+                poses_path + " has " + std::to_string(given_poses->size()) +
+                    " poses, the sequence " + std::to_string(seq.size()) + " frames",
                 1);
   }
-  const std::vector<geometry::SE3d>& gt = seq.gt_world_from_camera();
+  if (poses_path.empty() && !seq.has_gt_poses()) {
+    return Fail(kCommand,
+                "the sequence has no ground-truth poses (poses/" + args->Get("seq") +
+                    ".txt): calibration needs the true camera motion (--poses FILE)",
+                1);
+  }
+  const std::vector<geometry::SE3d>& gt =
+      poses_path.empty() ? seq.gt_world_from_camera() : *given_poses;
   const int64_t total = static_cast<int64_t>(gt.size());
   if (*first + 2 > total) {
     return Fail(kCommand,
@@ -128,12 +149,13 @@ int CalibrateCommand(int argc, char** argv) {
   const features::DisparityOffsetFit& fit = calibration.fit;
   std::printf(
       "sequence %s, frames %lld-%lld: %d keypoints with stereo in two frames 1-5 apart, "
-      "%zu agree with the ground-truth motion\n",
+      "%zu agree with the %s motion\n",
       args->Get("seq").c_str(),
       (long long)*first,
       (long long)(end - 1),
       stats.matched,
-      pairs.size());
+      pairs.size(),
+      poses_path.empty() ? "ground-truth" : "given");
   if (!fit.ok) {
     return Fail(kCommand,
                 "too few pairs (" + std::to_string(fit.num_pairs) +

@@ -208,6 +208,29 @@ TEST(Cli, CalibrateMeasuresTheRigsDisparityOffset) {
   const size_t at = out.find("disparity_offset_px: ");
   ASSERT_NE(at, std::string::npos);
   EXPECT_LT(std::abs(std::stod(out.substr(at + 21))), 0.1) << out;
+  // Metric poses from elsewhere (--poses): the same motion, the same offset;
+  // a file that does not have one pose per frame is refused.
+  const std::string gt_poses = MakeDataset() + "/poses/0000.txt";
+  ASSERT_EQ(Shell(std::string(TWISTSLAM_BIN) + " calibrate --dataset " + MakeDataset() +
+                      " --format kitti-tracking --seq 0000 --poses " + gt_poses + " >" + out_file,
+                  &err),
+            0)
+      << err;
+  const std::string given = ReadAll(out_file);
+  EXPECT_THAT(given, HasSubstr("agree with the given motion"));
+  EXPECT_EQ(given.substr(given.find("disparity offset ")),
+            out.substr(out.find("disparity offset ")));
+  const std::string short_poses = ::testing::TempDir() + "/twist_cli_short_poses.txt";
+  {
+    std::ofstream f(short_poses);
+    f << "1 0 0 0 0 1 0 0 0 0 1 0\n";
+  }
+  EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) + " calibrate --dataset " + MakeDataset() +
+                      " --format kitti-tracking --seq 0000 --poses " + short_poses,
+                  &err),
+            1);
+  EXPECT_THAT(err, HasSubstr("has 1 poses, the sequence 6 frames"));
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1);
   // Too few frames left, a missing dataset, a bad format: one line each.
   EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) + " calibrate --dataset " + MakeDataset() +
                       " --format kitti-tracking --seq 0000 --first 5",
