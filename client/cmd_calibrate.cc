@@ -9,7 +9,6 @@
 #include <functional>
 #include <iostream>
 #include <memory>
-#include <opencv2/imgproc.hpp>
 #include <string>
 #include <vector>
 
@@ -38,13 +37,6 @@ ArgParser MakeParser() {
                   "line per frame of the sequence, e.g. from GNSS/INS)",
                   false);
   return parser;
-}
-
-cv::Mat Gray(const cv::Mat& m) {
-  if (m.channels() == 1) return m;
-  cv::Mat g;
-  cv::cvtColor(m, g, cv::COLOR_BGR2GRAY);
-  return g;
 }
 
 void PrintSplit(const geometry::StereoCamera& camera,
@@ -135,7 +127,8 @@ int CalibrateCommand(int argc, char** argv) {
   for (int64_t i = *first; i < end; ++i) {
     absl::StatusOr<StereoFrame> f = seq.ReadFrame(i);
     if (!f.ok()) return Fail(kCommand, std::string(f.status().message()), 1);
-    views.push_back(features::ExtractStereoKeypoints(orb, camera, Gray(f->left), Gray(f->right)));
+    views.push_back(features::ExtractStereoKeypoints(
+        orb, camera, features::ToGray(f->left), features::ToGray(f->right)));
     poses.push_back(gt[i]);
     if (tty)
       std::fprintf(stderr, "\rcalibrate: frame %lld/%lld", (long long)(i + 1), (long long)end);

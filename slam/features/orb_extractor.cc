@@ -438,4 +438,11 @@ void OrbExtractor::Extract(const cv::Mat& image,
   if (levels_out != nullptr) *levels_out = std::move(levels);
 }
 
+cv::Mat ToGray(const cv::Mat& image) {
+  if (image.channels() == 1) return image;
+  cv::Mat gray;
+  cv::cvtColor(image, gray, cv::COLOR_BGR2GRAY);
+  return gray;
+}
+
 }  // namespace twist::features

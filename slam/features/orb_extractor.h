@@ -102,6 +102,10 @@ class OrbExtractor {
   std::vector<std::vector<std::array<int8_t, 4>>> rotated_pattern_;
 };
 
+// The 8-bit gray image the extractor reads: `image` itself (no copy) when it
+// is one channel, else the BGR image converted.
+cv::Mat ToGray(const cv::Mat& image);
+
 // Hamming distance of two 32-byte descriptors.
 int DescriptorDistance(const uint8_t* a, const uint8_t* b);
 inline int DescriptorDistance(const cv::Mat& a, int row_a, const cv::Mat& b, int row_b) {

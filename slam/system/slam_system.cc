@@ -11,7 +11,6 @@
 #include <fstream>
 #include <map>
 #include <mutex>
-#include <opencv2/imgproc.hpp>
 #include <sstream>
 #include <thread>
 
@@ -114,13 +113,6 @@ absl::Status CheckImage(const cv::Mat& m, const char* name) {
                                       std::to_string(m.type()));
   }
   return absl::OkStatus();
-}
-
-cv::Mat ToGray(const cv::Mat& m) {
-  if (m.type() == CV_8UC1) return m;
-  cv::Mat g;
-  cv::cvtColor(m, g, cv::COLOR_BGR2GRAY);
-  return g;
 }
 
 // ---------------------------------------------------------- serialisation
@@ -592,8 +584,8 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
   map::Frame frame;
   frame.id = frames_processed_;
   frame.timestamp_ns = input.timestamp_ns;
-  const cv::Mat left_gray = ToGray(input.left);
-  const cv::Mat right_gray = ToGray(input.right);
+  const cv::Mat left_gray = features::ToGray(input.left);
+  const cv::Mat right_gray = features::ToGray(input.right);
   cv::Mat dynamic;  // the dynamic segments, when the extraction built them
   frame.features = ExtractFeatures(input, left_gray, right_gray, &dynamic, &result.timings);
   frame.ResetMatches();
