@@ -108,9 +108,9 @@ int CalibrateCommand(int argc, char** argv) {
                     ".txt): calibration needs the true camera motion (--poses FILE)",
                 1);
   }
-  const std::vector<geometry::SE3d>& gt =
+  const std::vector<geometry::SE3d>& motion =
       poses_path.empty() ? seq.gt_world_from_camera() : *given_poses;
-  const int64_t total = static_cast<int64_t>(gt.size());
+  const int64_t total = static_cast<int64_t>(motion.size());
   if (*first + 2 > total) {
     return Fail(kCommand,
                 "--first " + std::to_string(*first) + " leaves fewer than 2 of the sequence's " +
@@ -129,7 +129,7 @@ int CalibrateCommand(int argc, char** argv) {
     if (!f.ok()) return Fail(kCommand, std::string(f.status().message()), 1);
     views.push_back(features::ExtractStereoKeypoints(
         orb, camera, features::ToGray(f->left), features::ToGray(f->right)));
-    poses.push_back(gt[i]);
+    poses.push_back(motion[i]);
     if (tty)
       std::fprintf(stderr, "\rcalibrate: frame %lld/%lld", (long long)(i + 1), (long long)end);
   }

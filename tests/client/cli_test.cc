@@ -231,6 +231,11 @@ TEST(Cli, CalibrateMeasuresTheRigsDisparityOffset) {
             1);
   EXPECT_THAT(err, HasSubstr("has 1 poses, the sequence 6 frames"));
   EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1);
+  EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) + " calibrate --dataset " + MakeDataset() +
+                      " --format kitti-tracking --seq 0000 --poses /nonexistent/poses.txt",
+                  &err),
+            1);
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1);
   // Too few frames left, a missing dataset, a bad format: one line each.
   EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) + " calibrate --dataset " + MakeDataset() +
                       " --format kitti-tracking --seq 0000 --first 5",
