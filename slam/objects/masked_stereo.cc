@@ -37,32 +37,38 @@ std::optional<double> MaskedDisparityUncorrected(const cv::Mat& left,
 
   // Masked left pixels, zero-mean, with their right-image rows and their
   // offsets from the window's centre (looked up once, not per disparity or
-  // iteration).
-  std::vector<int> xs;
-  std::vector<double> a, dxs, dys;
-  std::vector<const uint8_t*> right_rows;
+  // iteration), side by side for the loops below.
+  struct Pixel {
+    const uint8_t* right_row;
+    int x;
+    double a;  // left grey level, then less its mean
+    double dx, dy;
+  };
+  const int side = 2 * h + 1;
+  std::vector<Pixel> px;
+  px.reserve(static_cast<size_t>(side * side));
   for (int y = cy - h; y <= cy + h; ++y) {
     const uint8_t* m = mask.ptr<uint8_t>(y);
     const uint8_t* l = left.ptr<uint8_t>(y);
+    const uint8_t* r = right.ptr<uint8_t>(y);
     for (int x = cx - h; x <= cx + h; ++x) {
       if (m[x] == 0) continue;
-      xs.push_back(x);
-      a.push_back(l[x]);
-      dxs.push_back(x - cx);
-      dys.push_back(y - cy);
-      right_rows.push_back(right.ptr<uint8_t>(y));
+      px.push_back({r,
+                    x,
+                    static_cast<double>(l[x]),
+                    static_cast<double>(x - cx),
+                    static_cast<double>(y - cy)});
     }
   }
-  const int n = static_cast<int>(a.size());
-  const int side = 2 * h + 1;
+  const int n = static_cast<int>(px.size());
   if (n < options.min_pixels || n < options.min_mask_share * side * side) return std::nullopt;
   double mean_a = 0.0;
-  for (double v : a) mean_a += v;
+  for (const Pixel& p : px) mean_a += p.a;
   mean_a /= n;
   double var_a = 0.0;
-  for (double& v : a) {
-    v -= mean_a;
-    var_a += v * v;
+  for (Pixel& p : px) {
+    p.a -= mean_a;
+    var_a += p.a * p.a;
   }
   if (var_a / n < options.min_stddev * options.min_stddev) return std::nullopt;
 
@@ -73,11 +79,11 @@ std::optional<double> MaskedDisparityUncorrected(const cv::Mat& left,
   for (int j = 0; j < count; ++j) {
     const int d = d0 - s - 1 + j;
     double sum_b = 0.0, sum_bb = 0.0, sum_ab = 0.0;
-    for (int k = 0; k < n; ++k) {
-      const double b = right_rows[static_cast<size_t>(k)][xs[static_cast<size_t>(k)] - d];
+    for (const Pixel& p : px) {
+      const double b = p.right_row[p.x - d];
       sum_b += b;
       sum_bb += b * b;
-      sum_ab += a[static_cast<size_t>(k)] * b;
+      sum_ab += p.a * b;
     }
     const double var_b = sum_bb - sum_b * sum_b / n;
     if (var_b <= 1e-9) continue;
@@ -108,23 +114,24 @@ std::optional<double> MaskedDisparityUncorrected(const cv::Mat& left,
   // window, whose pixels may lie mostly on one side of the point, is the
   // disparity of the window's centroid rather than of the point.
   double g = 1.0, o = 0.0, gx = 0.0, gy = 0.0;
-  auto sample = [&](int k, double* b, double* slope) {
-    const size_t i = static_cast<size_t>(k);
-    const double x = xs[i] - d - gx * dxs[i] - gy * dys[i];
+  // The right image at the pixel's current disparity (linear) and its
+  // central-difference slope there; false off the image.
+  const int right_cols = right.cols;
+  auto sample = [&](const Pixel& p, double* b, double* slope) __attribute__((always_inline)) {
+    const double x = p.x - d - gx * p.dx - gy * p.dy;
     const int x0 = static_cast<int>(std::floor(x));
-    if (x0 < 1 || x0 + 2 >= right.cols) return false;
+    if (x0 < 1 || x0 + 2 >= right_cols) return false;
     const double t = x - x0;
-    const uint8_t* row = right_rows[i];
+    const uint8_t* row = p.right_row;
     *b = (1.0 - t) * row[x0] + t * row[x0 + 1];
-    // Central-difference slope, interpolated.
     *slope = 0.5 * ((1.0 - t) * (row[x0 + 1] - row[x0 - 1]) + t * (row[x0 + 2] - row[x0]));
     return true;
   };
   {
     // Initial gain and offset from the means and deviations at d.
     double sb = 0.0, sbb = 0.0, b = 0.0, slope = 0.0;
-    for (int k = 0; k < n; ++k) {
-      if (!sample(k, &b, &slope)) return std::nullopt;
+    for (const Pixel& p : px) {
+      if (!sample(p, &b, &slope)) return std::nullopt;
       sb += b;
       sbb += b * b;
     }
@@ -136,21 +143,55 @@ std::optional<double> MaskedDisparityUncorrected(const cv::Mat& left,
   using Vector5d = Eigen::Matrix<double, 5, 1>;
   using Matrix5d = Eigen::Matrix<double, 5, 5>;
   for (int it = 0; it < options.gauss_newton_iterations; ++it) {
-    Matrix5d h_mat = Matrix5d::Zero();
-    Vector5d rhs = Vector5d::Zero();
+    // The normal equations' lower triangle (LDLT reads no other) and
+    // right-hand side, accumulated in scalars (j4 = 1 exactly).
+    double h00 = 0, h10 = 0, h11 = 0, h20 = 0, h21 = 0, h22 = 0, h30 = 0, h31 = 0, h32 = 0, h33 = 0,
+           h40 = 0, h41 = 0, h42 = 0, h43 = 0, h44 = 0;
+    double r0 = 0, r1 = 0, r2 = 0, r3 = 0, r4 = 0;
     double b = 0.0, slope = 0.0;
-    for (int k = 0; k < n; ++k) {
-      if (!sample(k, &b, &slope)) return std::nullopt;
-      const double r = g * b + o - (a[static_cast<size_t>(k)] + mean_a);
-      const double dx = dxs[static_cast<size_t>(k)], dy = dys[static_cast<size_t>(k)];
-      Vector5d j;
-      j << -g * slope, -g * slope * dx, -g * slope * dy, b, 1.0;
-      // The lower triangle only: LDLT reads no other.
-      for (int row = 0; row < 5; ++row) {
-        for (int col = 0; col <= row; ++col) h_mat(row, col) += j(row) * j(col);
-      }
-      rhs -= j * r;
+    for (const Pixel& p : px) {
+      if (!sample(p, &b, &slope)) return std::nullopt;
+      const double r = g * b + o - (p.a + mean_a);
+      const double j0 = -g * slope, j1 = -g * slope * p.dx, j2 = -g * slope * p.dy, j3 = b;
+      h00 += j0 * j0;
+      h10 += j1 * j0;
+      h11 += j1 * j1;
+      h20 += j2 * j0;
+      h21 += j2 * j1;
+      h22 += j2 * j2;
+      h30 += j3 * j0;
+      h31 += j3 * j1;
+      h32 += j3 * j2;
+      h33 += j3 * j3;
+      h40 += j0;
+      h41 += j1;
+      h42 += j2;
+      h43 += j3;
+      h44 += 1.0;
+      r0 -= j0 * r;
+      r1 -= j1 * r;
+      r2 -= j2 * r;
+      r3 -= j3 * r;
+      r4 -= r;
     }
+    Matrix5d h_mat = Matrix5d::Zero();
+    h_mat(0, 0) = h00;
+    h_mat(1, 0) = h10;
+    h_mat(1, 1) = h11;
+    h_mat(2, 0) = h20;
+    h_mat(2, 1) = h21;
+    h_mat(2, 2) = h22;
+    h_mat(3, 0) = h30;
+    h_mat(3, 1) = h31;
+    h_mat(3, 2) = h32;
+    h_mat(3, 3) = h33;
+    h_mat(4, 0) = h40;
+    h_mat(4, 1) = h41;
+    h_mat(4, 2) = h42;
+    h_mat(4, 3) = h43;
+    h_mat(4, 4) = h44;
+    Vector5d rhs;
+    rhs << r0, r1, r2, r3, r4;
     // A weak prior towards zero slopes keeps the normal equations regular
     // when the texture cannot determine a slope (e.g. vertical stripes).
     h_mat(1, 1) += 25.0 * n;
