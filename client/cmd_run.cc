@@ -13,6 +13,7 @@
 #include <map>
 #include <mutex>
 #include <opencv2/core/persistence.hpp>
+#include <set>
 #include <sstream>
 #include <vector>
 
@@ -24,6 +25,7 @@
 #include "client/lib/slam_client.h"
 #include "client/lib/slam_convert.h"
 #include "slam/common/config_text.h"
+#include "slam/io/frame_prefetcher.h"
 #include "slam/io/json_writer.h"
 #include "slam/io/run_output.h"
 #include "slam/io/sequence.h"
@@ -158,6 +160,7 @@ std::string UpdateJson(const FrameResult& r) {
 // the wire encoding and the session policy.
 struct RunConfig {
   SlamOptions options;
+  std::set<std::string> slam_keys;  // the `slam:` keys given (sent to a server)
   std::string class_table_text;
   client::pb::ImageEncoding encoding = client::pb::IMAGE_ENCODING_RAW;
   int queue_capacity = 0;
@@ -189,6 +192,7 @@ bool ReadRunConfig(const std::string& path, RunConfig* config, std::string* erro
         const cv::FileNode o = *jt;
         const std::string k = o.name();
         SlamOptions& s = config->options;
+        config->slam_keys.insert(k);
         if (k == "mapping_mode") {
           const std::string v = o.string();
           if (v != "synchronous" && v != "background") {
@@ -247,6 +251,12 @@ bool ReadRunConfig(const std::string& path, RunConfig* config, std::string* erro
     }
   }
   return true;
+}
+
+// The sequence's frames 0 .. total-1, decoded on a thread of their own while
+// the frame before is processed or sent (two frames ahead: ~8 MB at KITTI size).
+io::FramePrefetcher Prefetch(const io::SequenceReader& reader, int64_t total) {
+  return io::FramePrefetcher([&reader](int64_t i) { return reader.ReadFrame(i); }, total, 2);
 }
 
 }  // namespace
@@ -333,11 +343,21 @@ int RunCommand(int argc, char** argv) {
 
   if (embedded) {
     info.mode = "embedded";
+    info.strings.push_back(
+        {"mapping_mode",
+         session.options.mapping_mode == MappingMode::kBackground ? "background" : "synchronous"});
     absl::StatusOr<std::unique_ptr<SlamSystem>> system = SlamSystem::Create(session);
     if (!system.ok()) return Fail(kCommand, std::string(system.status().message()), 1);
+    io::FramePrefetcher frames = Prefetch(reader, total);
     for (int64_t i = 0; i < total; ++i) {
-      absl::StatusOr<StereoFrame> frame = reader.ReadFrame(i);
-      if (!frame.ok()) return Fail(kCommand, std::string(frame.status().message()), 1);
+      absl::StatusOr<StereoFrame> frame = frames.Next();
+      if (!frame.ok()) {
+        // A frame that cannot be read is skipped and reported (exit 3); the
+        // run goes on and its outputs are written.
+        frame_errors.push_back(absl::StrCat("frame ", i, ": ", frame.status().message()));
+        progress.Update(i + 1);
+        continue;
+      }
       absl::StatusOr<FrameResult> r = (*system)->Process(*frame);
       if (!r.ok()) {
         frame_errors.push_back(absl::StrCat("frame ", i, ": ", r.status().message()));
@@ -363,6 +383,13 @@ int RunCommand(int argc, char** argv) {
     client::pb::CreateSessionRequest request;
     request.set_name(args->Get("name", reader.sequence()));
     *request.mutable_config() = client::SessionConfigToProto(session);
+    // Only the options the --config gave: the server's defaults apply to the
+    // rest (its own --config, and mapping in the session's thread).
+    if (absl::Status s =
+            client::KeepOnlyOptions(config.slam_keys, request.mutable_config()->mutable_options());
+        !s.ok()) {
+      return Fail(kCommand, absl::StrCat("config: ", s.message()), 2);
+    }
     request.mutable_policy()->set_queue_capacity(config.queue_capacity);
     request.mutable_policy()->set_overflow(config.drop_oldest
                                                ? client::pb::OVERFLOW_POLICY_DROP_OLDEST
@@ -374,6 +401,13 @@ int RunCommand(int argc, char** argv) {
           absl::StrCat(
               "cannot create a session on ", options.address, ": ", created.status().message()));
     }
+    // The session's effective mode ("unknown" from a server that predates
+    // SessionInfo.options).
+    const client::pb::MappingMode mode = created->session().options().mapping_mode();
+    info.strings.push_back({"mapping_mode",
+                            mode == client::pb::MAPPING_MODE_BACKGROUND    ? "background"
+                            : mode == client::pb::MAPPING_MODE_SYNCHRONOUS ? "synchronous"
+                                                                           : "unknown"});
     std::mutex mu;
     std::map<int64_t, client::pb::FrameUpdate> updates;
     int64_t answered = 0;
@@ -393,9 +427,15 @@ int RunCommand(int argc, char** argv) {
           }
         });
     if (!stream.ok()) return Fail(kCommand, std::string(stream.message()));
+    io::FramePrefetcher frames = Prefetch(reader, total);
     for (int64_t i = 0; i < total; ++i) {
-      absl::StatusOr<StereoFrame> frame = reader.ReadFrame(i);
-      if (!frame.ok()) return Fail(kCommand, std::string(frame.status().message()), 1);
+      absl::StatusOr<StereoFrame> frame = frames.Next();
+      if (!frame.ok()) {
+        // Not sent: skipped and reported as in the embedded mode.
+        std::lock_guard<std::mutex> lock(mu);
+        frame_errors.push_back(absl::StrCat("frame ", i, ": ", frame.status().message()));
+        continue;
+      }
       client::FrameImages images;
       images.index = i;
       images.timestamp_ns = frame->timestamp_ns;

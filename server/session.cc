@@ -446,6 +446,7 @@ pb::SessionInfo Session::Info() const {
   info.set_last_persisted_frames(saved_frames_);
   info.set_queue_depth(bound_ != nullptr ? bound_->queue->size() : 0);
   *info.mutable_policy() = setup_.policy;
+  ToProto(setup_.config.options, info.mutable_options());
   info.set_num_map_points(num_map_points_);
   info.set_num_keyframes(num_keyframes_);
   return info;

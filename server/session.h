@@ -153,10 +153,21 @@ class Session {
   std::deque<pb::FrameUpdate> recent_updates_ ABSL_GUARDED_BY(mu_);
 };
 
+// SlamOptions' defaults except mapping_mode = background.
+inline SlamOptions ServiceDefaultOptions() {
+  SlamOptions o;
+  o.mapping_mode = MappingMode::kBackground;
+  return o;
+}
+
 // Builds and validates a session's setup from its creation request, on top
 // of the server's defaults.
 struct SetupLimits {
-  SlamOptions default_options;
+  // The engine's defaults, with mapping in the session's own thread: a
+  // service must keep up with its stream (synchronous mapping, the engine's
+  // deterministic default for tests, runs a KITTI-size stream at ~3 frames/s
+  // on 2 cores against ~10 in the background; docs/server.md).
+  SlamOptions default_options = ServiceDefaultOptions();
   int default_queue_capacity = 4;
   int max_queue_capacity = 64;
   double default_idle_timeout_s = 600;

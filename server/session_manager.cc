@@ -49,6 +49,7 @@ pb::SessionInfo StoredInfo(const SessionRecord& r) {
   info.set_created_unix_ms(r.created_unix_ms);
   info.set_last_persisted_frames(r.frames_processed);
   *info.mutable_policy() = r.request.policy();
+  *info.mutable_options() = r.request.config().options();  // as sent at creation
   return info;
 }
 

@@ -1,5 +1,10 @@
 #include "client/lib/slam_convert.h"
 
+#include <google/protobuf/descriptor.h>
+#include <google/protobuf/message.h>
+
+#include "absl/strings/str_cat.h"
+
 namespace twist::client {
 namespace {
 
@@ -82,6 +87,22 @@ pb::SessionConfig SessionConfigToProto(const SessionConfig& config) {
   po->set_stereo_by_point_depth(o.stereo_by_point_depth);
   po->set_disparity_offset_px(o.disparity_offset_px);
   return out;
+}
+
+absl::Status KeepOnlyOptions(const std::set<std::string>& keep, pb::SlamOptions* options) {
+  const google::protobuf::Descriptor* d = options->GetDescriptor();
+  for (const std::string& key : keep) {
+    if (d->FindFieldByName(key) == nullptr) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("slam.", key, " has no field in twistslam.v1.SlamOptions"));
+    }
+  }
+  const google::protobuf::Reflection* r = options->GetReflection();
+  for (int i = 0; i < d->field_count(); ++i) {
+    const google::protobuf::FieldDescriptor* f = d->field(i);
+    if (keep.count(f->name()) == 0) r->ClearField(options, f);
+  }
+  return absl::OkStatus();
 }
 
 FrameResult FrameResultFromProto(const pb::FrameUpdate& u) {

@@ -3,8 +3,11 @@
 // has its own (server/convert.h); the two meet only through the .proto.
 #pragma once
 
+#include <set>
+#include <string>
 #include <vector>
 
+#include "absl/status/status.h"
 #include "slam/common/frame_result.h"
 #include "slam/system/slam_options.h"
 #include "slam/system/slam_system.h"
@@ -18,6 +21,12 @@ namespace pb = ::twistslam::v1;
 
 // Calibration, class table + joint graph, and every option (all fields set).
 pb::SessionConfig SessionConfigToProto(const SessionConfig& config);
+
+// Clears every option not named in `keep` (the `slam:` keys of a client's
+// config, which are the fields' names), so that the server's defaults apply
+// to them: its --config, and mapping in the session's own thread.
+// InvalidArgument, naming it, for a key that is no field of pb::SlamOptions.
+absl::Status KeepOnlyOptions(const std::set<std::string>& keep, pb::SlamOptions* options);
 
 FrameResult FrameResultFromProto(const pb::FrameUpdate& update);
 geometry::SE3d PoseFromProto(const pb::Pose& pose);

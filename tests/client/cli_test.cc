@@ -127,14 +127,34 @@ TEST(Cli, ServerRunAndMapEndToEnd) {
   fs::remove_all(out_local);
   const std::string common = std::string(TWISTSLAM_BIN) + " run --dataset " + dataset +
                              " --format kitti-tracking --seq 0000 ";
+  // The server maps in the session's thread unless told otherwise; the
+  // comparison with the embedded engine asks for its deterministic mode.
+  const std::string sync_config = ::testing::TempDir() + "/twist_cli_sync.yaml";
+  {
+    std::ofstream f(sync_config);
+    f << "slam:\n  mapping_mode: synchronous\n";
+  }
   std::string err;
-  ASSERT_EQ(Shell(common + "--out " + out_remote + " --server " + server.address() +
-                      " --keep-session > " + ::testing::TempDir() + "/twist_cli_stdout.txt",
-                  &err),
-            0)
+  ASSERT_EQ(
+      Shell(common + "--out " + out_remote + " --server " + server.address() + " --config " +
+                sync_config + " --keep-session > " + ::testing::TempDir() + "/twist_cli_stdout.txt",
+            &err),
+      0)
       << err;
   EXPECT_THAT(err, HasSubstr("frames/s"));
+  EXPECT_THAT(ReadAll(out_remote + "/summary.json"),
+              HasSubstr("\"mapping_mode\": \"synchronous\""));
+  // No --config: the server's default, mapping in the background.
+  const std::string out_default = ::testing::TempDir() + "/twist_cli_remote_default";
+  fs::remove_all(out_default);
+  ASSERT_EQ(Shell(common + "--out " + out_default + " --server " + server.address(), &err), 0)
+      << err;
+  EXPECT_THAT(ReadAll(out_default + "/summary.json"),
+              HasSubstr("\"mapping_mode\": \"background\""));
+  const std::string default_updates = ReadAll(out_default + "/updates.jsonl");
+  EXPECT_EQ(std::count(default_updates.begin(), default_updates.end(), '\n'), 6);
   ASSERT_EQ(Shell(common + "--out " + out_local + " --embedded", &err), 0) << err;
+  EXPECT_THAT(ReadAll(out_local + "/summary.json"), HasSubstr("\"mapping_mode\": \"synchronous\""));
   // Quiet by default; GLOG_v=1 shows the engine's verbose log (the tracker's
   // per-frame line).
   EXPECT_THAT(err, ::testing::Not(HasSubstr(" path ")));
@@ -252,6 +272,41 @@ TEST(Cli, CalibrateMeasuresTheRigsDisparityOffset) {
       Shell(std::string(TWISTSLAM_BIN) + " calibrate --dataset /x --format bogus --seq 00", &err),
       2);
   EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1);
+}
+
+// A frame whose image cannot be read mid-sequence is skipped and reported
+// (exit 3); the frames before and after it are processed and every output is
+// written, embedded and through a server alike.
+TEST(Cli, AnUnreadableFrameIsSkippedAndNothingElseIsLost) {
+  const std::string dataset = ::testing::TempDir() + "/twist_cli_damaged";
+  fs::remove_all(dataset);
+  fs::copy(MakeDataset(), dataset, fs::copy_options::recursive);
+  {
+    std::ofstream f(dataset + "/image_02/0000/000003.png", std::ios::binary | std::ios::trunc);
+    f << "not a PNG";
+  }
+  Server server({});
+  ASSERT_FALSE(server.address().empty()) << server.first_line();
+  for (const std::string& mode : {std::string("--embedded"), "--server " + server.address()}) {
+    const std::string out = ::testing::TempDir() + "/twist_cli_damaged_out";
+    fs::remove_all(out);
+    std::string err;
+    EXPECT_EQ(Shell(std::string(TWISTSLAM_BIN) + " run --dataset " + dataset +
+                        " --format kitti-tracking --seq 0000 --out " + out + " " + mode,
+                    &err),
+              3)
+        << mode << ": " << err;
+    EXPECT_THAT(err, HasSubstr("frame 3: "));
+    EXPECT_THAT(err, HasSubstr("000003.png"));
+    EXPECT_THAT(err, HasSubstr("5/6 frames processed (1 errors"));
+    const std::string summary = ReadAll(out + "/summary.json");
+    EXPECT_THAT(summary, HasSubstr("\"frames_processed\": 5")) << mode;
+    EXPECT_THAT(summary, HasSubstr("\"frame_errors\": 1")) << mode;
+    const std::string camera = ReadAll(out + "/camera.txt");
+    EXPECT_EQ(std::count(camera.begin(), camera.end(), '\n'), 5) << mode;
+  }
+  EXPECT_EQ(server.Stop(), 0);
+  fs::remove_all(dataset);
 }
 
 TEST(Cli, BadArgumentsAndInputsFailWithOneLine) {

@@ -91,6 +91,55 @@ TEST(SlamConvert, SessionConfigSurvivesTheServerSetup) {
   EXPECT_EQ(setup->policy.overflow(), pb::OVERFLOW_POLICY_BLOCK);
 }
 
+// `twistslam run --server` sends only the options its --config gave; the
+// server fills in the rest from its defaults, mapping in the background
+// among them. Every wire field is a `slam:` key of the config files.
+TEST(SlamConvert, OnlyTheGivenOptionsAreSentAndTheServerDefaultsTheRest) {
+  SessionConfig config;
+  config.camera = {700.0, 710.0, 300.5, 150.25, 0.54, 640, 320};
+  config.options.num_features = 1234;
+  config.options.stereo_by_point_depth = true;
+  pb::CreateSessionRequest request;
+  *request.mutable_config() = SessionConfigToProto(config);
+  ASSERT_TRUE(KeepOnlyOptions({"num_features"}, request.mutable_config()->mutable_options()).ok());
+  const pb::SlamOptions& sent = request.config().options();
+  EXPECT_EQ(sent.num_features(), 1234);
+  EXPECT_FALSE(sent.has_stereo_by_point_depth());
+  EXPECT_FALSE(sent.has_num_levels());
+  EXPECT_EQ(sent.mapping_mode(), pb::MAPPING_MODE_UNSPECIFIED);
+
+  server::SetupLimits limits;
+  limits.default_options.num_levels = 5;  // a server --config's slam.num_levels
+  absl::StatusOr<server::SessionSetup> setup = server::BuildSessionSetup(request, limits);
+  ASSERT_TRUE(setup.ok()) << setup.status();
+  EXPECT_EQ(setup->config.options.num_features, 1234);
+  EXPECT_EQ(setup->config.options.num_levels, 5);
+  EXPECT_FALSE(setup->config.options.stereo_by_point_depth);  // the server's default
+  EXPECT_EQ(setup->config.options.mapping_mode, MappingMode::kBackground);
+  EXPECT_EQ(server::SetupLimits().default_options.mapping_mode, MappingMode::kBackground);
+
+  // Asked for, the engine's deterministic mode.
+  *request.mutable_config() = SessionConfigToProto(config);
+  ASSERT_TRUE(KeepOnlyOptions({"mapping_mode"}, request.mutable_config()->mutable_options()).ok());
+  setup = server::BuildSessionSetup(request, limits);
+  ASSERT_TRUE(setup.ok()) << setup.status();
+  EXPECT_EQ(setup->config.options.mapping_mode, MappingMode::kSynchronous);
+  EXPECT_EQ(setup->config.options.num_features, SlamOptions().num_features);
+
+  pb::SlamOptions options = SessionConfigToProto(config).options();
+  const absl::Status bad = KeepOnlyOptions({"num_features", "bogus"}, &options);
+  EXPECT_TRUE(absl::IsInvalidArgument(bad));
+  EXPECT_THAT(std::string(bad.message()), HasSubstr("slam.bogus"));
+
+  const google::protobuf::Descriptor* d = pb::SlamOptions::descriptor();
+  for (int i = 0; i < d->field_count(); ++i) {
+    const std::string name = d->field(i)->name();
+    if (name == "mapping_mode") continue;  // a string key, parsed on its own
+    SlamOptions o;
+    EXPECT_TRUE(SetNumericSlamOption(name, 1.0, &o)) << name << " is no slam: config key";
+  }
+}
+
 TEST(SlamConvert, FrameResultRoundTrip) {
   FrameResult r;
   r.index = 12;
