@@ -343,9 +343,7 @@ int RunCommand(int argc, char** argv) {
 
   if (embedded) {
     info.mode = "embedded";
-    info.strings.push_back(
-        {"mapping_mode",
-         session.options.mapping_mode == MappingMode::kBackground ? "background" : "synchronous"});
+    info.strings.push_back({"mapping_mode", MappingModeName(session.options.mapping_mode)});
     absl::StatusOr<std::unique_ptr<SlamSystem>> system = SlamSystem::Create(session);
     if (!system.ok()) return Fail(kCommand, std::string(system.status().message()), 1);
     io::FramePrefetcher frames = Prefetch(reader, total);
@@ -405,9 +403,11 @@ int RunCommand(int argc, char** argv) {
     // SessionInfo.options).
     const client::pb::MappingMode mode = created->session().options().mapping_mode();
     info.strings.push_back({"mapping_mode",
-                            mode == client::pb::MAPPING_MODE_BACKGROUND    ? "background"
-                            : mode == client::pb::MAPPING_MODE_SYNCHRONOUS ? "synchronous"
-                                                                           : "unknown"});
+                            mode == client::pb::MAPPING_MODE_UNSPECIFIED
+                                ? "unknown"
+                                : MappingModeName(mode == client::pb::MAPPING_MODE_BACKGROUND
+                                                      ? MappingMode::kBackground
+                                                      : MappingMode::kSynchronous)});
     std::mutex mu;
     std::map<int64_t, client::pb::FrameUpdate> updates;
     int64_t answered = 0;

@@ -22,6 +22,14 @@ FramePrefetcher::~FramePrefetcher() {
   if (thread_.joinable()) thread_.join();
 }
 
+absl::StatusOr<StereoFrame> FramePrefetcher::ReadGuarded(int64_t i) const {
+  try {
+    return read_(i);
+  } catch (const std::exception& e) {  // a decoder's exception must not end the process
+    return absl::InternalError(absl::StrCat("frame ", i, ": ", e.what()));
+  }
+}
+
 void FramePrefetcher::Run() {
   for (int64_t i = 0; i < count_; ++i) {
     {
@@ -30,12 +38,7 @@ void FramePrefetcher::Run() {
       if (stop_) return;
     }
     // Read outside the lock: the consumer takes earlier frames meanwhile.
-    absl::StatusOr<StereoFrame> frame = absl::InternalError("unread");
-    try {
-      frame = read_(i);
-    } catch (const std::exception& e) {  // a decoder's exception must not end the process
-      frame = absl::InternalError(absl::StrCat("frame ", i, ": ", e.what()));
-    }
+    absl::StatusOr<StereoFrame> frame = ReadGuarded(i);
     {
       std::lock_guard<std::mutex> lock(mu_);
       if (stop_) return;

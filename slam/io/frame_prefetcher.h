@@ -49,6 +49,8 @@ class FramePrefetcher {
 
  private:
   void Run();
+  // read_(i), with an exception turned into that frame's error.
+  absl::StatusOr<StereoFrame> ReadGuarded(int64_t i) const;
 
   const ReadFn read_;
   const int64_t count_;

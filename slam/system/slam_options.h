@@ -16,6 +16,10 @@ enum class MappingMode {
   kSynchronous = 0,  // mapping runs inside Process(): deterministic (tests)
   kBackground = 1,   // mapping runs in a per-session thread (service)
 };
+// "synchronous" | "background", as the config files' slam.mapping_mode spells it.
+inline const char* MappingModeName(MappingMode mode) {
+  return mode == MappingMode::kBackground ? "background" : "synchronous";
+}
 
 struct SlamOptions {
   // Features.

@@ -1,5 +1,5 @@
-// FramePrefetcher: order, errors in their place, bounded read-ahead, early
-// stop, and the same frames as reading them in the loop.
+// FramePrefetcher: order and single reads, errors (and exceptions) in their
+// place, bounded read-ahead, early stop, no frames.
 #include "slam/io/frame_prefetcher.h"
 
 #include <gmock/gmock.h>
