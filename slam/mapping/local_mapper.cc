@@ -94,7 +94,9 @@ bool NeedNewKeyFrame(const KeyFrameDecisionInput& in) {
       in.num_keyframes > in.max_frames) {
     return false;
   }
-  if (in.dense) return in.mapper_idle && in.num_inliers > 15;
+  if (in.dense) {
+    return (in.mapper_idle || in.mapper_queue < in.max_mapper_queue) && in.num_inliers > 15;
+  }
   const double ref_ratio = in.num_keyframes < 2 ? 0.4 : 0.75;
   const bool need_close = in.num_tracked_close < 100 && in.num_untracked_close > 70;
   const bool c1a = in.frame_id >= in.last_keyframe_frame_id + in.max_frames;
@@ -169,7 +171,8 @@ map::KeyFrame* LocalMapper::CreateKeyFrame(const map::Frame& frame, map::Map* ma
 
 MappingTimings LocalMapper::ProcessKeyFrame(int64_t kf_id,
                                             map::Map* map,
-                                            const std::atomic<bool>* abort) {
+                                            const std::atomic<bool>* abort,
+                                            const std::function<bool()>& skip_ba) {
   MappingTimings t;
   Stopwatch sw;
   {
@@ -186,8 +189,11 @@ MappingTimings LocalMapper::ProcessKeyFrame(int64_t kf_id,
   }
   t.process_ms = sw.ElapsedMs();
   sw.Restart();
-  t.ba_keyframes = LocalBundleAdjustment(kf_id, map, abort, &t);
-  t.ba_ms = sw.ElapsedMs();
+  t.bundle_adjusted = skip_ba == nullptr || !skip_ba();
+  if (t.bundle_adjusted) {
+    t.ba_keyframes = LocalBundleAdjustment(kf_id, map, abort, &t);
+    t.ba_ms = sw.ElapsedMs();
+  }
   sw.Restart();
   {
     std::lock_guard<std::mutex> lock(map->mutex());
@@ -756,7 +762,10 @@ void MappingThread::Run() {
       busy_ = true;
       abort_ba_ = false;
     }
-    const MappingTimings t = mapper_->ProcessKeyFrame(kf_id, map_, &abort_ba_);
+    const MappingTimings t = mapper_->ProcessKeyFrame(kf_id, map_, &abort_ba_, [this] {
+      std::lock_guard<std::mutex> lock(mutex_);
+      return !queue_.empty();
+    });
     {
       std::lock_guard<std::mutex> lock(mutex_);
       timings_.push_back(t);

@@ -86,6 +86,12 @@ struct KeyFrameDecisionInput {
   int num_untracked_close = 0;
   bool mapper_idle = true;
   int mapper_queue = 0;
+  // Dense keyframes in background mode: a frame also becomes a keyframe
+  // while the mapper is busy if fewer than this many keyframes wait for it
+  // (0: only when it is idle). The mapper adjusts a batch of waiting
+  // keyframes with one bundle adjustment (MappingThread), so the frames the
+  // busy mapper would have skipped are still refined.
+  int max_mapper_queue = 0;
   int max_frames = 10;  // fps of the sequence (one keyframe per second at least)
   // Dense keyframes (SlamOptions::dense_keyframes): every tracked frame the
   // mapper can take becomes a keyframe, so that each frame's pose is refined
@@ -96,6 +102,7 @@ bool NeedNewKeyFrame(const KeyFrameDecisionInput& in);
 
 struct MappingTimings {
   double process_ms = 0.0;  // observations, culling, triangulation, fusion
+  bool bundle_adjusted = false;  // false: left to a newer keyframe's BA
   double ba_ms = 0.0;
   double culling_ms = 0.0;
   int ba_keyframes = 0;
@@ -115,10 +122,14 @@ class LocalMapper {
   map::KeyFrame* CreateKeyFrame(const map::Frame& frame, map::Map* map, bool initial);
 
   // The per-keyframe work (see header). Deterministic for a given map.
-  // `abort` (optional) stops the bundle adjustment early.
+  // `abort` (optional) stops the bundle adjustment early. `skip_ba`
+  // (optional) is asked once the keyframe's points are made, before its
+  // bundle adjustment: true leaves the adjustment to a newer keyframe whose
+  // window covers this one.
   MappingTimings ProcessKeyFrame(int64_t kf_id,
                                  map::Map* map,
-                                 const std::atomic<bool>* abort = nullptr);
+                                 const std::atomic<bool>* abort = nullptr,
+                                 const std::function<bool()>& skip_ba = nullptr);
 
   // Recently created points under probation (saved for exact resume).
   const std::list<int64_t>& recent_points() const { return recent_points_; }
@@ -151,7 +162,13 @@ class LocalMapper {
 };
 
 // Runs a LocalMapper on its own thread (MappingMode::kBackground): keyframes
-// are queued by the tracking thread and processed in order.
+// are queued by the tracking thread and processed in order. A keyframe that
+// another one waits behind gets its points and fusion but no bundle
+// adjustment of its own: the newest keyframe's adjustment optimises it with
+// its most covisible neighbours, which the keyframes just before it are.
+// So a bundle adjustment runs to the end instead of being cut short when a
+// frame comes (it works on a copy, tracking never waits for it), and the
+// mapper catches up with a batch of keyframes at the price of one.
 class MappingThread {
  public:
   MappingThread(LocalMapper* mapper, map::Map* map);
@@ -159,8 +176,6 @@ class MappingThread {
   void Enqueue(int64_t kf_id);
   bool idle() const;
   int queue_size() const;
-  // Asks a running bundle adjustment to stop early (a new keyframe waits).
-  void InterruptBundleAdjustment() { abort_ba_ = true; }
   // Blocks until the queue is empty and nothing is being processed.
   void WaitIdle();
   void Shutdown();

@@ -72,6 +72,12 @@ constexpr char kMagic[8] = {'T', 'W', 'S', 'L', 'A', 'M', 'S', '1'};
 constexpr uint32_t kFormatVersion = 17;
 // Covisible keyframes in the local BA with dense keyframes (SlamOptions).
 constexpr int kDenseLocalBaKeyFrames = 8;
+// Dense keyframes in background mode: keyframes that may wait for the busy
+// mapper (KeyFrameDecisionInput::max_mapper_queue). 0 made a keyframe of
+// about every other frame at 10 frames/s, each bundle adjustment cut short
+// by the next frame; with 2 the mapper adjusts the waiting ones in batches
+// (docs/math.md section 23).
+constexpr int kDenseKeyFrameQueue = 2;
 // With SlamOptions::extra_camera_keypoints the right image's budget grows by
 // this many times the favoured (dynamic) share of the left image: favoured
 // keypoints are extra to the left budget, and they win their cells, so they
@@ -617,7 +623,6 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
     }
     result.timings.push_back({"track", sw.ElapsedMs()});
   } else {
-    if (thread_ != nullptr && !thread_->idle()) thread_->InterruptBundleAdjustment();
     state = tracker_.Track(&frame, &map_);
     if (config_.options.parked_objects_static &&
         (state == TrackingState::kOk || state == TrackingState::kRelocalized)) {
@@ -642,6 +647,7 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
       in.num_untracked_close = tracker_.stats().num_untracked_close;
       in.mapper_idle = thread_ == nullptr || thread_->idle();
       in.mapper_queue = thread_ == nullptr ? 0 : thread_->queue_size();
+      in.max_mapper_queue = kDenseKeyFrameQueue;
       in.max_frames = max_frames_;
       in.dense = config_.options.dense_keyframes;
       if (mapping::NeedNewKeyFrame(in)) {
@@ -665,7 +671,7 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
   if (thread_ != nullptr) {
     for (const auto& t : thread_->TakeTimings()) {
       result.timings.push_back({"mapping", t.process_ms});
-      result.timings.push_back({"ba", t.ba_ms});
+      if (t.bundle_adjusted) result.timings.push_back({"ba", t.ba_ms});
     }
   }
 

@@ -254,6 +254,14 @@ TEST(KeyFramePolicy, DenseKeyFramesTakeEveryFrameTheMapperCanTake) {
   in.mapper_idle = false;  // background mapping still busy: not this frame
   in.mapper_queue = 0;
   EXPECT_FALSE(NeedNewKeyFrame(in));
+  in.max_mapper_queue = 2;  // unless keyframes may wait for it
+  EXPECT_TRUE(NeedNewKeyFrame(in));
+  in.mapper_queue = 1;
+  EXPECT_TRUE(NeedNewKeyFrame(in));
+  in.mapper_queue = 2;  // the queue is full
+  EXPECT_FALSE(NeedNewKeyFrame(in));
+  in.mapper_queue = 0;
+  in.max_mapper_queue = 0;
   in.mapper_idle = true;
   in.num_inliers = 10;  // too weak to make a keyframe
   EXPECT_FALSE(NeedNewKeyFrame(in));
@@ -320,11 +328,62 @@ TEST_F(MapperTest, BackgroundThreadProcessesTheQueue) {
   for (int k = 1; k <= 3; ++k) thread.Enqueue(AddKeyFrame(2 * k, &w2p)->id);
   thread.WaitIdle();
   EXPECT_TRUE(thread.idle());
-  EXPECT_EQ(thread.TakeTimings().size(), 3u);
+  const std::vector<MappingTimings> timings = thread.TakeTimings();
+  ASSERT_EQ(timings.size(), 3u);
+  EXPECT_TRUE(timings.back().bundle_adjusted);  // nothing waits behind the last one
   thread.Shutdown();
   thread.Shutdown();  // idempotent
   std::lock_guard<std::mutex> lock(map_.mutex());
   EXPECT_GE(map_.NumGoodKeyFrames(), 2);
+}
+
+// Keyframes that queue behind a busy mapper are adjusted together: each
+// gets its points, only the newest runs the bundle adjustment, and its
+// window moves the waiting ones too.
+TEST_F(MapperTest, BackgroundThreadAdjustsWaitingKeyFramesInOneBatch) {
+  std::map<int, int64_t> w2p;
+  std::map<int64_t, int> frame_of;  // keyframe id -> frame k
+  for (int k = 0; k < 4; ++k) frame_of[AddKeyFrame(k, &w2p)->id] = k;
+  auto pose_error = [&](int64_t id) {
+    return testing::TranslationError(map_.keyframe(id)->camera_from_world.Inverse(),
+                                     TruePose(frame_of[id]));
+  };
+  // Every keyframe but the first (the gauge) is moved off its true pose; the
+  // batch's one bundle adjustment must bring all of them back.
+  std::map<int64_t, double> error_before;
+  MapperOptions keep_all;  // no keyframe culled: each one's pose is checked
+  keep_all.keyframe_redundancy = 2.0;
+  LocalMapper mapper(cam_, pyramid_, keep_all);
+  MappingThread thread(&mapper, &map_);
+  {
+    // Holding the map keeps the thread in the first keyframe's point work,
+    // so all three keyframes are queued before any adjustment is decided.
+    std::lock_guard<std::mutex> lock(map_.mutex());
+    for (const auto& [id, k] : frame_of) {
+      if (k == 0) continue;
+      map::KeyFrame* kf = map_.keyframe(id);
+      kf->camera_from_world =
+          geometry::SE3d::Exp(
+              (Eigen::Matrix<double, 6, 1>() << 0.03, -0.02, 0.01, 0.002, -0.003, 0.001)
+                  .finished()) *
+          kf->camera_from_world;
+      error_before[id] = pose_error(id);
+      thread.Enqueue(id);
+    }
+  }
+  thread.WaitIdle();
+  const std::vector<MappingTimings> timings = thread.TakeTimings();
+  ASSERT_EQ(timings.size(), 3u);
+  EXPECT_FALSE(timings[0].bundle_adjusted);
+  EXPECT_FALSE(timings[1].bundle_adjusted);
+  EXPECT_EQ(timings[1].ba_ms, 0.0);
+  EXPECT_TRUE(timings[2].bundle_adjusted);
+  EXPECT_EQ(timings[2].ba_keyframes, 3);  // the batch; the first keyframe holds the gauge
+  std::lock_guard<std::mutex> lock(map_.mutex());
+  for (const auto& [id, before] : error_before) {
+    EXPECT_GT(before, 0.02);
+    EXPECT_LT(pose_error(id), 0.2 * before) << "keyframe " << id;
+  }
 }
 
 }  // namespace
