@@ -2,6 +2,9 @@
 
 #include <ceres/ceres.h>
 #include <glog/logging.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <climits>
@@ -703,8 +706,8 @@ void LocalMapper::CullKeyFrames(const map::KeyFrame& kf, map::Map* map) {
 }
 
 // ------------------------------------------------------------ MappingThread
-MappingThread::MappingThread(LocalMapper* mapper, map::Map* map)
-    : mapper_(mapper), map_(map), thread_([this] { Run(); }) {}
+MappingThread::MappingThread(LocalMapper* mapper, map::Map* map, int niceness)
+    : mapper_(mapper), map_(map), niceness_(niceness), thread_([this] { Run(); }) {}
 
 MappingThread::~MappingThread() { Shutdown(); }
 
@@ -751,6 +754,14 @@ std::vector<MappingTimings> MappingThread::TakeTimings() {
 }
 
 void MappingThread::Run() {
+  if (niceness_ > 0) {
+    // This thread only (Linux: a thread's nice value is its own). Failing
+    // to lower it costs speed, not correctness: logged, not fatal.
+    const auto tid = static_cast<id_t>(syscall(SYS_gettid));
+    if (setpriority(PRIO_PROCESS, tid, niceness_) != 0) {
+      PLOG(WARNING) << "mapping thread: setpriority(" << niceness_ << ")";
+    }
+  }
   while (true) {
     int64_t kf_id;
     {

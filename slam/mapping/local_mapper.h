@@ -169,9 +169,14 @@ class LocalMapper {
 // So a bundle adjustment runs to the end instead of being cut short when a
 // frame comes (it works on a copy, tracking never waits for it), and the
 // mapper catches up with a batch of keyframes at the price of one.
+//
+// `niceness` > 0 lowers the thread's scheduling priority (its nice value):
+// the tracking thread, whose latency the client sees, then comes first and
+// the mapper works in the CPU time tracking leaves, which at a live stream's
+// rate is the time between frames.
 class MappingThread {
  public:
-  MappingThread(LocalMapper* mapper, map::Map* map);
+  explicit MappingThread(LocalMapper* mapper, map::Map* map, int niceness = 0);
   ~MappingThread();
   void Enqueue(int64_t kf_id);
   bool idle() const;
@@ -187,6 +192,7 @@ class MappingThread {
 
   LocalMapper* mapper_;
   map::Map* map_;
+  const int niceness_;
   mutable std::mutex mutex_;
   std::condition_variable cv_;
   std::condition_variable idle_cv_;

@@ -1,4 +1,14 @@
 #include <gtest/gtest.h>
+#include <sys/resource.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <sstream>
+#include <string>
+#include <vector>
 
 #include <functional>
 #include <random>
@@ -384,6 +394,47 @@ TEST_F(MapperTest, BackgroundThreadAdjustsWaitingKeyFramesInOneBatch) {
     EXPECT_GT(before, 0.02);
     EXPECT_LT(pose_error(id), 0.2 * before) << "keyframe " << id;
   }
+}
+
+// Nice values of this process's threads, from /proc/self/task/*/stat.
+std::vector<int> ThreadNiceValues() {
+  std::vector<int> out;
+  for (const auto& task : std::filesystem::directory_iterator("/proc/self/task")) {
+    std::ifstream in(task.path() / "stat");
+    std::string stat((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    // Fields after the command name (in parentheses, may hold spaces):
+    // state is field 3, nice field 19.
+    const size_t close = stat.rfind(')');
+    if (close == std::string::npos) continue;
+    std::istringstream fields(stat.substr(close + 2));
+    std::string field;
+    for (int i = 3; i <= 19 && fields >> field; ++i) {
+      if (i == 19) out.push_back(std::stoi(field));
+    }
+  }
+  return out;
+}
+
+TEST_F(MapperTest, TheBackgroundThreadRunsAtItsOwnLowerPriority) {
+  errno = 0;
+  const int own = getpriority(PRIO_PROCESS, 0);  // this thread's nice value
+  ASSERT_EQ(errno, 0);
+  if (own >= 19) GTEST_SKIP() << "the test already runs at the lowest priority";
+  std::map<int, int64_t> w2p;
+  AddKeyFrame(0, &w2p);
+  MappingThread thread(&mapper_, &map_, /*niceness=*/19);
+  thread.Enqueue(AddKeyFrame(1, &w2p)->id);
+  thread.WaitIdle();  // the thread has run: its priority is set
+  const std::vector<int> nice = ThreadNiceValues();
+  EXPECT_EQ(std::count(nice.begin(), nice.end(), 19), 1);  // the mapping thread only
+  EXPECT_EQ(getpriority(PRIO_PROCESS, 0), own);             // not the caller's
+  thread.Shutdown();
+  // Without a niceness the thread keeps the process's priority.
+  MappingThread plain(&mapper_, &map_);
+  plain.Enqueue(AddKeyFrame(2, &w2p)->id);
+  plain.WaitIdle();
+  const std::vector<int> after = ThreadNiceValues();
+  EXPECT_EQ(std::count(after.begin(), after.end(), 19), 0);
 }
 
 }  // namespace
