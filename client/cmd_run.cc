@@ -15,6 +15,7 @@
 #include <opencv2/core/persistence.hpp>
 #include <set>
 #include <sstream>
+#include <thread>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
@@ -253,6 +254,39 @@ bool ReadRunConfig(const std::string& path, RunConfig* config, std::string* erro
   return true;
 }
 
+// --realtime: each frame goes to the engine or the stream no earlier than
+// its timestamp's offset from the first frame's, as a camera would deliver
+// it. A frame that comes late (the engine was slower than the stream) goes
+// at once: nothing is dropped here (the server's overflow policy may).
+class Pacer {
+ public:
+  explicit Pacer(bool on) : on_(on) {}
+  void WaitFor(int64_t timestamp_ns) {
+    if (!on_) return;
+    const auto now = std::chrono::steady_clock::now();
+    if (!started_) {
+      started_ = true;
+      start_ = now;
+      first_ns_ = timestamp_ns;
+      return;
+    }
+    const auto due = start_ + std::chrono::nanoseconds(timestamp_ns - first_ns_);
+    if (due > now) {
+      std::this_thread::sleep_until(due);
+    } else {
+      ++late_;
+    }
+  }
+  int64_t late() const { return late_; }
+
+ private:
+  bool on_;
+  bool started_ = false;
+  std::chrono::steady_clock::time_point start_;
+  int64_t first_ns_ = 0;
+  int64_t late_ = 0;
+};
+
 // The sequence's frames 0 .. total-1, decoded on a thread of their own while
 // the frame before is processed or sent (two frames ahead: ~8 MB at KITTI size).
 io::FramePrefetcher Prefetch(const io::SequenceReader& reader, int64_t total) {
@@ -295,6 +329,8 @@ int RunCommand(int argc, char** argv) {
       .AddValue("tls-ca", "FILE", "PEM roots: connect with TLS", false)
       .AddValue("max-frames", "N", "process at most N frames", false, "all")
       .AddValue("name", "NAME", "session name shown by the server", false, "the sequence")
+      .AddFlag("realtime",
+               "send each frame at its timestamp (a live camera's pace) instead of at once")
       .AddFlag("keep-session",
                "leave the server session open (for `twistslam map`) and print its id");
   std::optional<Args> args = parser.Parse(argc, argv);
@@ -340,6 +376,7 @@ int RunCommand(int argc, char** argv) {
   int64_t dropped = 0;
   int reconnects = 0;
   Progress progress(total);
+  Pacer pacer(args->Flag("realtime"));
 
   if (embedded) {
     info.mode = "embedded";
@@ -356,6 +393,7 @@ int RunCommand(int argc, char** argv) {
         progress.Update(i + 1);
         continue;
       }
+      pacer.WaitFor(frame->timestamp_ns);
       absl::StatusOr<FrameResult> r = (*system)->Process(*frame);
       if (!r.ok()) {
         frame_errors.push_back(absl::StrCat("frame ", i, ": ", r.status().message()));
@@ -456,6 +494,7 @@ int RunCommand(int argc, char** argv) {
         pb_box->set_x_max(b.x_max);
         pb_box->set_y_max(b.y_max);
       }
+      pacer.WaitFor(frame->timestamp_ns);
       if (absl::Status s = (*client)->Send(wire); !s.ok()) {
         return Fail(kCommand, absl::StrCat("stream failed at frame ", i, ": ", s.message()));
       }
@@ -492,6 +531,10 @@ int RunCommand(int argc, char** argv) {
   info.numbers.push_back({"frame_errors", static_cast<double>(frame_errors.size())});
   info.numbers.push_back({"frames_dropped", static_cast<double>(dropped)});
   info.numbers.push_back({"reconnects", static_cast<double>(reconnects)});
+  if (args->Flag("realtime")) {
+    // Frames the engine or the stream took after their due time.
+    info.numbers.push_back({"realtime_late_frames", static_cast<double>(pacer.late())});
+  }
   info.numbers.push_back(
       {"frames_per_second", info.wall_time_s > 0 ? results.size() / info.wall_time_s : 0.0});
 

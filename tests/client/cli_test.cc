@@ -22,6 +22,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using ::testing::HasSubstr;
+using ::testing::Not;
 
 std::string ReadAll(const std::string& path) {
   std::ifstream in(path);
@@ -307,6 +308,36 @@ TEST(Cli, AnUnreadableFrameIsSkippedAndNothingElseIsLost) {
   }
   EXPECT_EQ(server.Stop(), 0);
   fs::remove_all(dataset);
+}
+
+// --realtime paces the frames by their timestamps: 6 frames at 10 Hz take at
+// least the 0.5 s between the first and the last (a lower bound only: a slow
+// machine takes longer, never shorter).
+TEST(Cli, RealtimeSendsEachFrameAtItsTimestamp) {
+  const std::string dataset = MakeDataset();
+  const std::string out = ::testing::TempDir() + "/twist_cli_realtime";
+  fs::remove_all(out);
+  std::string err;
+  ASSERT_EQ(Shell(std::string(TWISTSLAM_BIN) + " run --embedded --realtime --dataset " + dataset +
+                      " --format kitti-tracking --seq 0000 --out " + out,
+                  &err),
+            0)
+      << err;
+  const std::string summary = ReadAll(out + "/summary.json");
+  EXPECT_THAT(summary, HasSubstr("\"realtime_late_frames\": "));
+  EXPECT_THAT(summary, HasSubstr("\"frames_processed\": 6"));
+  const size_t at = summary.find("\"wall_time_s\": ");
+  ASSERT_NE(at, std::string::npos) << summary;
+  EXPECT_GE(std::stod(summary.substr(at + 15)), 0.5);
+  // Without the flag the key is absent.
+  fs::remove_all(out);
+  ASSERT_EQ(Shell(std::string(TWISTSLAM_BIN) + " run --embedded --dataset " + dataset +
+                      " --format kitti-tracking --seq 0000 --out " + out,
+                  &err),
+            0)
+      << err;
+  EXPECT_THAT(ReadAll(out + "/summary.json"), Not(HasSubstr("realtime_late_frames")));
+  fs::remove_all(out);
 }
 
 TEST(Cli, BadArgumentsAndInputsFailWithOneLine) {
