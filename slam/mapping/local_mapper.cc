@@ -111,6 +111,12 @@ bool NeedNewKeyFrame(const KeyFrameDecisionInput& in) {
   return in.mapper_idle || in.mapper_queue < 3;
 }
 
+bool KeyFrameAfterWaiting(const KeyFrameDecisionInput& in) {
+  return in.dense && in.max_frames_without_keyframe > 0 &&
+         in.frame_id - in.last_keyframe_frame_id >= in.max_frames_without_keyframe &&
+         in.num_inliers > 15 && !NeedNewKeyFrame(in);
+}
+
 LocalMapper::LocalMapper(const geometry::StereoCamera& camera,
                          const features::ScalePyramid& pyramid,
                          const MapperOptions& options)
@@ -729,6 +735,11 @@ int MappingThread::queue_size() const {
   return static_cast<int>(queue_.size());
 }
 
+void MappingThread::WaitForRoom(int max_queue) {
+  std::unique_lock<std::mutex> lock(mutex_);
+  idle_cv_.wait(lock, [&] { return static_cast<int>(queue_.size()) < max_queue || stop_; });
+}
+
 void MappingThread::WaitIdle() {
   std::unique_lock<std::mutex> lock(mutex_);
   idle_cv_.wait(lock, [this] { return (queue_.empty() && !busy_) || stop_; });
@@ -773,6 +784,7 @@ void MappingThread::Run() {
       busy_ = true;
       abort_ba_ = false;
     }
+    idle_cv_.notify_all();  // room in the queue (WaitForRoom)
     const MappingTimings t = mapper_->ProcessKeyFrame(kf_id, map_, &abort_ba_, [this] {
       std::lock_guard<std::mutex> lock(mutex_);
       return !queue_.empty();

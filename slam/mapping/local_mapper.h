@@ -97,8 +97,19 @@ struct KeyFrameDecisionInput {
   // mapper can take becomes a keyframe, so that each frame's pose is refined
   // by the local BA with its own stereo points rather than kept as tracked.
   bool dense = false;
+  // Dense keyframes in background mode: after this many frames without a
+  // keyframe (0: no bound) tracking waits for room in the mapper's queue
+  // and makes one (KeyFrameAfterWaiting). This bounds how far the map lags
+  // behind in the stream's own time when frames come faster than the mapper
+  // takes them (a recording replayed at once); at a live stream's pace the
+  // mapper keeps up and nothing waits.
+  int max_frames_without_keyframe = 0;
 };
 bool NeedNewKeyFrame(const KeyFrameDecisionInput& in);
+// True when NeedNewKeyFrame says no only because the mapper's queue is full
+// and max_frames_without_keyframe frames have passed: the caller waits for
+// room (MappingThread::WaitForRoom) and makes the keyframe.
+bool KeyFrameAfterWaiting(const KeyFrameDecisionInput& in);
 
 struct MappingTimings {
   double process_ms = 0.0;  // observations, culling, triangulation, fusion
@@ -181,6 +192,8 @@ class MappingThread {
   void Enqueue(int64_t kf_id);
   bool idle() const;
   int queue_size() const;
+  // Blocks until fewer than `max_queue` keyframes wait (or the thread stops).
+  void WaitForRoom(int max_queue);
   // Blocks until the queue is empty and nothing is being processed.
   void WaitIdle();
   void Shutdown();

@@ -83,6 +83,10 @@ constexpr int kDenseKeyFrameQueue = 2;
 // runs as fast as they go (docs/math.md section 23): about 1.5 frames/s more
 // than at nice 0 and ~20 % fewer keyframes, at a like camera RPE_t.
 constexpr int kMappingThreadNiceness = 19;
+// Dense keyframes in background mode: frames without a keyframe after which
+// tracking waits for the mapper (KeyFrameDecisionInput). See math.md
+// section 23 for KITTI 06 replayed at once with and without it.
+constexpr int kMaxFramesWithoutKeyFrame = 5;
 // With SlamOptions::extra_camera_keypoints the right image's budget grows by
 // this many times the favoured (dynamic) share of the left image: favoured
 // keypoints are extra to the left budget, and they win their cells, so they
@@ -653,9 +657,17 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
       in.mapper_idle = thread_ == nullptr || thread_->idle();
       in.mapper_queue = thread_ == nullptr ? 0 : thread_->queue_size();
       in.max_mapper_queue = kDenseKeyFrameQueue;
+      in.max_frames_without_keyframe = thread_ == nullptr ? 0 : kMaxFramesWithoutKeyFrame;
       in.max_frames = max_frames_;
       in.dense = config_.options.dense_keyframes;
-      if (mapping::NeedNewKeyFrame(in)) {
+      bool make_keyframe = mapping::NeedNewKeyFrame(in);
+      if (!make_keyframe && mapping::KeyFrameAfterWaiting(in)) {
+        Stopwatch wait;
+        thread_->WaitForRoom(kDenseKeyFrameQueue);
+        result.timings.push_back({"mapping_wait", wait.ElapsedMs()});
+        make_keyframe = true;
+      }
+      if (make_keyframe) {
         new_kf = mapper_.CreateKeyFrame(frame, &map_, /*initial=*/false);
         tracker_.OnKeyFrameCreated(frame, *new_kf);
       }

@@ -10,7 +10,9 @@
 #include <string>
 #include <vector>
 
+#include <chrono>
 #include <functional>
+#include <future>
 #include <random>
 #include <set>
 
@@ -279,6 +281,60 @@ TEST(KeyFramePolicy, DenseKeyFramesTakeEveryFrameTheMapperCanTake) {
   in.num_keyframes = 20;  // right after a relocalisation in a large map
   in.last_relocalization_frame_id = 3;
   EXPECT_FALSE(NeedNewKeyFrame(in));
+}
+
+TEST(KeyFramePolicy, ABusyMapperIsWaitedForOnlyPastTheFrameBound) {
+  KeyFrameDecisionInput in;
+  in.dense = true;
+  in.num_keyframes = 5;
+  in.num_inliers = 390;
+  in.mapper_idle = false;
+  in.max_mapper_queue = 2;
+  in.mapper_queue = 2;  // the queue is full: NeedNewKeyFrame says no
+  in.max_frames_without_keyframe = 5;
+  in.last_keyframe_frame_id = 10;
+  in.frame_id = 14;
+  EXPECT_FALSE(NeedNewKeyFrame(in));
+  EXPECT_FALSE(KeyFrameAfterWaiting(in));  // 4 frames: not yet
+  in.frame_id = 15;
+  EXPECT_TRUE(KeyFrameAfterWaiting(in));  // 5 frames: wait and make one
+  in.max_frames_without_keyframe = 0;     // no bound (synchronous, or off)
+  EXPECT_FALSE(KeyFrameAfterWaiting(in));
+  in.max_frames_without_keyframe = 5;
+  in.num_inliers = 10;  // too weak to make a keyframe at all
+  EXPECT_FALSE(KeyFrameAfterWaiting(in));
+  in.num_inliers = 390;
+  in.mapper_queue = 1;  // room: NeedNewKeyFrame takes it, nothing to wait for
+  EXPECT_TRUE(NeedNewKeyFrame(in));
+  EXPECT_FALSE(KeyFrameAfterWaiting(in));
+  in.mapper_queue = 2;
+  in.dense = false;  // the ratio policy has its own bound (max_frames)
+  EXPECT_FALSE(KeyFrameAfterWaiting(in));
+}
+
+TEST_F(MapperTest, WaitingForRoomReturnsWhenTheMapperTakesAKeyFrame) {
+  std::map<int, int64_t> w2p;
+  AddKeyFrame(0, &w2p);
+  const int64_t first = AddKeyFrame(1, &w2p)->id;
+  const int64_t second = AddKeyFrame(2, &w2p)->id;
+  MappingThread thread(&mapper_, &map_);
+  std::future<void> waited;
+  {
+    // The thread takes the first keyframe and waits for the map; the second
+    // stays queued, so there is no room for another.
+    std::lock_guard<std::mutex> lock(map_.mutex());
+    thread.Enqueue(first);
+    thread.Enqueue(second);
+    waited = std::async(std::launch::async, [&thread] { thread.WaitForRoom(1); });
+    // Still blocked while both keyframes are held up (a correctness check:
+    // returning early is the bug; a slow machine only makes it pass later).
+    EXPECT_EQ(waited.wait_for(std::chrono::milliseconds(50)), std::future_status::timeout);
+  }
+  waited.wait();  // the thread took the second keyframe: room for one
+  thread.WaitIdle();
+  EXPECT_EQ(thread.TakeTimings().size(), 2u);
+  thread.WaitForRoom(1);  // an empty queue has room at once
+  thread.Shutdown();
 }
 
 TEST_F(MapperTest, TheLocalBundleAdjustmentKeepsTheMostCovisibleKeyFrames) {
