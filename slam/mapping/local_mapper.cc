@@ -753,6 +753,7 @@ void MappingThread::Shutdown() {
   }
   abort_ba_ = true;
   cv_.notify_all();
+  idle_cv_.notify_all();  // WaitForRoom and WaitIdle return on the stop
   if (thread_.joinable()) thread_.join();
   idle_cv_.notify_all();
 }

@@ -337,6 +337,29 @@ TEST_F(MapperTest, WaitingForRoomReturnsWhenTheMapperTakesAKeyFrame) {
   thread.Shutdown();
 }
 
+// A session shut down while its tracking waits for the mapper must not hang:
+// the wait ends when the thread stops, with keyframes still queued.
+TEST_F(MapperTest, WaitingForRoomEndsWhenTheThreadStops) {
+  std::map<int, int64_t> w2p;
+  AddKeyFrame(0, &w2p);
+  const int64_t first = AddKeyFrame(1, &w2p)->id;
+  const int64_t second = AddKeyFrame(2, &w2p)->id;
+  MappingThread thread(&mapper_, &map_);
+  std::future<void> waited, stopped;
+  {
+    std::lock_guard<std::mutex> lock(map_.mutex());
+    thread.Enqueue(first);
+    thread.Enqueue(second);
+    waited = std::async(std::launch::async, [&thread] { thread.WaitForRoom(1); });
+    stopped = std::async(std::launch::async, [&thread] { thread.Shutdown(); });
+    // The wait ends on the stop, before the thread has finished its
+    // keyframe (it is held up on the map here).
+    waited.wait();
+  }
+  stopped.wait();
+  EXPECT_GE(thread.queue_size(), 1);  // the second keyframe was never taken
+}
+
 TEST_F(MapperTest, TheLocalBundleAdjustmentKeepsTheMostCovisibleKeyFrames) {
   std::map<int, int64_t> w2p;
   std::vector<int64_t> kfs;
