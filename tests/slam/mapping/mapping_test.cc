@@ -85,6 +85,15 @@ class MapperTest : public ::testing::Test {
 
   double MoveOfAPointReadFar(const MapperOptions& options);
 
+  // Keyframes at frames 0..n; returns the ids of frames 1..n (frame 0 holds
+  // the gauge).
+  std::vector<int64_t> KeyFramesAfterTheFirst(int n, std::map<int, int64_t>* world_to_point) {
+    AddKeyFrame(0, world_to_point);
+    std::vector<int64_t> ids;
+    for (int k = 1; k <= n; ++k) ids.push_back(AddKeyFrame(k, world_to_point)->id);
+    return ids;
+  }
+
   geometry::StereoCamera cam_;
   features::ScalePyramid pyramid_;
   testing::FeatureWorld world_;
@@ -314,17 +323,14 @@ TEST(KeyFramePolicy, ABusyMapperIsWaitedForOnlyPastTheFrameBound) {
 
 TEST_F(MapperTest, WaitingForRoomReturnsWhenTheMapperTakesAKeyFrame) {
   std::map<int, int64_t> w2p;
-  AddKeyFrame(0, &w2p);
-  const int64_t first = AddKeyFrame(1, &w2p)->id;
-  const int64_t second = AddKeyFrame(2, &w2p)->id;
+  const std::vector<int64_t> kfs = KeyFramesAfterTheFirst(2, &w2p);
   MappingThread thread(&mapper_, &map_);
   std::future<void> waited;
   {
     // The thread takes the first keyframe and waits for the map; the second
     // stays queued, so there is no room for another.
     std::lock_guard<std::mutex> lock(map_.mutex());
-    thread.Enqueue(first);
-    thread.Enqueue(second);
+    for (int64_t id : kfs) thread.Enqueue(id);
     waited = std::async(std::launch::async, [&thread] { thread.WaitForRoom(1); });
     // Still blocked while both keyframes are held up (a correctness check:
     // returning early is the bug; a slow machine only makes it pass later).
@@ -341,15 +347,12 @@ TEST_F(MapperTest, WaitingForRoomReturnsWhenTheMapperTakesAKeyFrame) {
 // the wait ends when the thread stops, with keyframes still queued.
 TEST_F(MapperTest, WaitingForRoomEndsWhenTheThreadStops) {
   std::map<int, int64_t> w2p;
-  AddKeyFrame(0, &w2p);
-  const int64_t first = AddKeyFrame(1, &w2p)->id;
-  const int64_t second = AddKeyFrame(2, &w2p)->id;
+  const std::vector<int64_t> kfs = KeyFramesAfterTheFirst(2, &w2p);
   MappingThread thread(&mapper_, &map_);
   std::future<void> waited, stopped;
   {
     std::lock_guard<std::mutex> lock(map_.mutex());
-    thread.Enqueue(first);
-    thread.Enqueue(second);
+    for (int64_t id : kfs) thread.Enqueue(id);
     waited = std::async(std::launch::async, [&thread] { thread.WaitForRoom(1); });
     stopped = std::async(std::launch::async, [&thread] { thread.Shutdown(); });
     // The wait ends on the stop, before the thread has finished its
