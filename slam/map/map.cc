@@ -3,8 +3,10 @@
 #include <glog/logging.h>
 
 #include <algorithm>
+#include <chrono>
 #include <climits>
 #include <cmath>
+#include <thread>
 
 namespace twist::map {
 
@@ -56,6 +58,20 @@ int MapPoint::PredictScale(float distance, const features::ScalePyramid& pyramid
   const float ratio = max_distance / distance;
   int level = static_cast<int>(std::ceil(std::log(ratio) / pyramid.log_scale_factor));
   return std::clamp(level, 0, pyramid.num_levels() - 1);
+}
+
+void Map::YieldToPriorityWaiter(std::unique_lock<std::mutex>* lock) const {
+  lock->unlock();
+  if (priority_waiters_.load(std::memory_order_acquire) == 0) {
+    std::this_thread::yield();
+  } else {
+    // Until the waiter holds the map (it leaves the count once it does);
+    // bounded so that a waiter that never comes cannot stall the mapper.
+    for (int i = 0; i < 500 && priority_waiters_.load(std::memory_order_acquire) > 0; ++i) {
+      std::this_thread::sleep_for(std::chrono::microseconds(20));
+    }
+  }
+  lock->lock();
 }
 
 Map::Map(const geometry::StereoCamera& camera, const features::ScalePyramid& pyramid)

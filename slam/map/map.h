@@ -9,6 +9,7 @@
 
 #include <Eigen/Core>
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -109,6 +110,19 @@ class Map {
   Map(const geometry::StereoCamera& camera, const features::ScalePyramid& pyramid);
 
   std::mutex& mutex() const { return mutex_; }
+  // The map's lock for the tracking thread, whose latency the client sees:
+  // while it waits, the mapper's yields between its steps
+  // (YieldToPriorityWaiter) let it in. std::mutex is not fair, and a mapper
+  // that unlocks and locks again would otherwise take it straight back.
+  std::unique_lock<std::mutex> PriorityLock() const {
+    priority_waiters_.fetch_add(1, std::memory_order_acq_rel);
+    std::unique_lock<std::mutex> lock(mutex_);
+    priority_waiters_.fetch_sub(1, std::memory_order_acq_rel);
+    return lock;
+  }
+  // Called by the mapper between steps with `lock` (on mutex()) held: lets a
+  // PriorityLock waiter take the map first. Holds the lock again on return.
+  void YieldToPriorityWaiter(std::unique_lock<std::mutex>* lock) const;
   const geometry::StereoCamera& camera() const { return camera_; }
   const features::ScalePyramid& pyramid() const { return pyramid_; }
 
@@ -169,6 +183,7 @@ class Map {
   geometry::StereoCamera camera_;
   features::ScalePyramid pyramid_;
   mutable std::mutex mutex_;
+  mutable std::atomic<int> priority_waiters_{0};
   std::map<int64_t, std::unique_ptr<KeyFrame>> keyframes_;
   std::map<int64_t, std::unique_ptr<MapPoint>> points_;
   double disparity_offset_ = 0.0;

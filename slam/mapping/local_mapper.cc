@@ -133,7 +133,8 @@ int LocalMapper::WeightedObservations(const map::MapPoint& p, const map::Map& ma
 }
 
 map::KeyFrame* LocalMapper::CreateKeyFrame(const map::Frame& frame, map::Map* map, bool initial) {
-  std::lock_guard<std::mutex> lock(map->mutex());
+  // Called by the tracking thread: its priority turn at the map.
+  const std::unique_lock<std::mutex> lock = map->PriorityLock();
   map::KeyFrame* kf = map->CreateKeyFrame(frame);
   const auto& f = *frame.features;
   // Observations of the tracked (inlier) map points.
@@ -232,11 +233,9 @@ void LocalMapper::CullRecentPoints(const map::KeyFrame& kf, map::Map* map) {
   }
 }
 
-void LocalMapper::YieldLock(std::unique_lock<std::mutex>* lock) {
+void LocalMapper::YieldLock(const map::Map& map, std::unique_lock<std::mutex>* lock) {
   if (lock == nullptr) return;
-  lock->unlock();
-  std::this_thread::yield();
-  lock->lock();
+  map.YieldToPriorityWaiter(lock);
 }
 
 int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1,
@@ -251,7 +250,7 @@ int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1,
   const Eigen::Matrix3d K_inv = K.inverse();
   int created = 0;
   for (int64_t nb_id : kf1->BestCovisible(options_.triangulation_neighbours)) {
-    YieldLock(lock);
+    YieldLock(*map, lock);
     map::KeyFrame* kf2 = map->keyframe(nb_id);
     if (kf2 == nullptr) continue;
     const auto& f2 = *kf2->features;
@@ -453,11 +452,11 @@ void LocalMapper::FuseWithNeighbours(map::KeyFrame* kf,
     if (pid >= 0) own.push_back(pid);
   }
   for (int64_t t : targets) {
-    YieldLock(lock);
+    YieldLock(*map, lock);
     map::KeyFrame* tkf = map->keyframe(t);
     if (tkf != nullptr) Fuse(tkf, own, map, 3.f);
   }
-  YieldLock(lock);
+  YieldLock(*map, lock);
   // Neighbours' points into the current keyframe.
   std::vector<int64_t> theirs;
   std::set<int64_t> seen;

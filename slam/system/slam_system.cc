@@ -642,7 +642,7 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
     if (state == TrackingState::kOk || state == TrackingState::kRelocalized) {
       mapping::KeyFrameDecisionInput in;
       {
-        std::lock_guard<std::mutex> lock(map_.mutex());
+        const std::unique_lock<std::mutex> lock = map_.PriorityLock();
         in.num_keyframes = map_.NumGoodKeyFrames();
         const map::KeyFrame* ref = map_.keyframe(tracker_.reference_kf_id());
         in.reference_tracked_points =
@@ -728,7 +728,7 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
   result.num_tracked_points =
       state == TrackingState::kNotInitialized ? 0 : tracker_.stats().num_inliers;
   {
-    std::lock_guard<std::mutex> lock(map_.mutex());
+    const std::unique_lock<std::mutex> lock = map_.PriorityLock();
     result.num_map_points = map_.NumGoodPoints();
     result.num_keyframes = map_.NumGoodKeyFrames();
   }

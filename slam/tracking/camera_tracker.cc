@@ -84,7 +84,7 @@ void CameraTracker::SetState(State s) {
 
 TrackingState CameraTracker::Track(map::Frame* frame, map::Map* map) {
   if (state_ == TrackingState::kNotInitialized) return state_;
-  std::lock_guard<std::mutex> lock(map->mutex());
+  const std::unique_lock<std::mutex> lock = map->PriorityLock();
   // Stereo measurements with the map's current disparity offset estimate.
   const float offset = static_cast<float>(map->disparity_offset());
   frame->features = map::WithDisparityOffset(frame->features, camera_, offset);

@@ -2,6 +2,10 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
+#include <chrono>
+#include <thread>
+
 namespace twist::map {
 namespace {
 
@@ -89,6 +93,40 @@ TEST(Map, ReplaceMergesObservationsAndDescriptorIsTheMedoid) {
   EXPECT_NEAR(p->max_distance, 10.0, 1e-5);  // level 0 in the reference kf
   EXPECT_EQ(p->PredictScale(10.0f, map.pyramid()), 0);
   EXPECT_EQ(p->PredictScale(10.0f / 1.3f, map.pyramid()), 2);
+}
+
+// The tracking thread's PriorityLock gets the map at the mapper's next
+// yield: std::mutex alone lets the yielding thread take it straight back.
+// Counted in the mapper's steps, not in time.
+TEST(Map, APriorityWaiterGetsTheMapAtTheMappersNextYield) {
+  Map map(Camera(), features::ScalePyramid::Create(8, 1.2));
+  std::atomic<int> steps{0};
+  std::atomic<bool> stop{false};
+  std::thread mapper([&] {
+    std::unique_lock<std::mutex> lock(map.mutex());
+    while (!stop.load()) {
+      std::this_thread::sleep_for(std::chrono::microseconds(500));  // a step's work
+      ++steps;
+      map.YieldToPriorityWaiter(&lock);
+    }
+  });
+  while (steps.load() < 3) std::this_thread::yield();
+  for (int round = 0; round < 300; ++round) {
+    // Ask while the mapper is inside a step (holding the map).
+    const int before = steps.load();
+    while (steps.load() == before) std::this_thread::yield();
+    const int asked = steps.load();
+    const std::unique_lock<std::mutex> lock = map.PriorityLock();
+    // The step under way when asked ends, then the waiter is let in (one
+    // more step if the waiter was preempted past the yield's bound).
+    EXPECT_LE(steps.load() - asked, 2) << "round " << round;
+  }
+  stop = true;
+  mapper.join();
+  // Without a waiter the yield only releases and retakes the lock.
+  std::unique_lock<std::mutex> lock(map.mutex());
+  map.YieldToPriorityWaiter(&lock);
+  EXPECT_TRUE(lock.owns_lock());
 }
 
 }  // namespace
