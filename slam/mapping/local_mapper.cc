@@ -186,8 +186,9 @@ MappingTimings LocalMapper::ProcessKeyFrame(int64_t kf_id,
   MappingTimings t;
   Stopwatch sw;
   {
-    // The lock is released between neighbours (see YieldLock) so that the
-    // tracking thread is not blocked for the whole step in background mode.
+    // The lock is released between neighbours (Map::YieldToPriorityWaiter)
+    // so that the tracking thread is not blocked for the whole step in
+    // background mode.
     // Only the mapper erases keyframes and points, so `kf` stays valid.
     std::unique_lock<std::mutex> lock(map->mutex());
     map::KeyFrame* kf = map->keyframe(kf_id);
@@ -233,11 +234,6 @@ void LocalMapper::CullRecentPoints(const map::KeyFrame& kf, map::Map* map) {
   }
 }
 
-void LocalMapper::YieldLock(const map::Map& map, std::unique_lock<std::mutex>* lock) {
-  if (lock == nullptr) return;
-  map.YieldToPriorityWaiter(lock);
-}
-
 int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1,
                                            map::Map* map,
                                            std::unique_lock<std::mutex>* lock) {
@@ -250,7 +246,7 @@ int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1,
   const Eigen::Matrix3d K_inv = K.inverse();
   int created = 0;
   for (int64_t nb_id : kf1->BestCovisible(options_.triangulation_neighbours)) {
-    YieldLock(*map, lock);
+    map->YieldToPriorityWaiter(lock);
     map::KeyFrame* kf2 = map->keyframe(nb_id);
     if (kf2 == nullptr) continue;
     const auto& f2 = *kf2->features;
@@ -452,11 +448,11 @@ void LocalMapper::FuseWithNeighbours(map::KeyFrame* kf,
     if (pid >= 0) own.push_back(pid);
   }
   for (int64_t t : targets) {
-    YieldLock(*map, lock);
+    map->YieldToPriorityWaiter(lock);
     map::KeyFrame* tkf = map->keyframe(t);
     if (tkf != nullptr) Fuse(tkf, own, map, 3.f);
   }
-  YieldLock(*map, lock);
+  map->YieldToPriorityWaiter(lock);
   // Neighbours' points into the current keyframe.
   std::vector<int64_t> theirs;
   std::set<int64_t> seen;

@@ -161,7 +161,6 @@ class LocalMapper {
                                 map::Map* map,
                                 std::unique_lock<std::mutex>* lock);
   void FuseWithNeighbours(map::KeyFrame* kf, map::Map* map, std::unique_lock<std::mutex>* lock);
-  static void YieldLock(const map::Map& map, std::unique_lock<std::mutex>* lock);
   int Fuse(map::KeyFrame* kf, const std::vector<int64_t>& point_ids, map::Map* map, float radius);
   void CullKeyFrames(const map::KeyFrame& kf, map::Map* map);
   int WeightedObservations(const map::MapPoint& p, const map::Map& map) const;

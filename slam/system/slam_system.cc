@@ -663,7 +663,7 @@ absl::StatusOr<FrameResult> SlamSystemImpl::Process(const StereoFrame& input) {
       bool make_keyframe = mapping::NeedNewKeyFrame(in);
       if (!make_keyframe && mapping::KeyFrameAfterWaiting(in)) {
         Stopwatch wait;
-        thread_->WaitForRoom(kDenseKeyFrameQueue);
+        thread_->WaitForRoom(in.max_mapper_queue);
         result.timings.push_back({"mapping_wait", wait.ElapsedMs()});
         make_keyframe = true;
       }
