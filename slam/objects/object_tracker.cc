@@ -408,6 +408,7 @@ void ObjectTracker::SetState(State state) {
   objects_ = std::move(state.objects);
   next_object_id_ = state.next_object_id;
   prev_left_ = std::move(state.prev_left);
+  prev_left_pyramid_.clear();
   prev_timestamp_ns_ = state.prev_timestamp_ns;
   has_prev_ = state.has_prev;
   prev_camera_from_world_ = state.prev_camera_from_world;
@@ -870,11 +871,15 @@ absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> ObjectTracker::Spars
     const std::vector<Eigen::Vector2d>& prev_uv,
     const std::vector<Eigen::Vector2d>& predicted_uv) const {
   if (ctx.pyramid.empty()) {
-    absl::StatusOr<std::vector<cv::Mat>> prev = SparseFlowPyramid(prev_left_, options_.flow);
-    if (!prev.ok()) return prev.status();
+    if (prev_left_pyramid_.empty()) {
+      absl::StatusOr<std::vector<cv::Mat>> prev = SparseFlowPyramid(prev_left_, options_.flow);
+      if (!prev.ok()) return prev.status();
+      ctx.prev_pyramid = *std::move(prev);
+    } else {
+      ctx.prev_pyramid = prev_left_pyramid_;  // shares the buffers
+    }
     absl::StatusOr<std::vector<cv::Mat>> next = SparseFlowPyramid(ctx.frame.left, options_.flow);
     if (!next.ok()) return next.status();
-    ctx.prev_pyramid = *std::move(prev);
     ctx.pyramid = *std::move(next);
   }
   return TrackSparseFlow(ctx.prev_pyramid, ctx.pyramid, prev_uv, options_.flow, &predicted_uv);
@@ -1572,6 +1577,7 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
   std::vector<ObjectResult> results;
   for (const auto& [id, o] : objects_) results.push_back(ToResult(o));
   prev_left_ = frame.left.clone();
+  prev_left_pyramid_ = std::move(ctx.pyramid);  // empty when no object needed flow
   prev_timestamp_ns_ = frame.timestamp_ns;
   has_prev_ = true;
   prev_camera_from_world_ = frame.camera_from_world;

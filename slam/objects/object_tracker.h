@@ -751,6 +751,10 @@ class ObjectTracker {
   std::map<int64_t, TrackedObject> objects_;
   int64_t next_object_id_ = 1;
   cv::Mat prev_left_;
+  // The sparse flow's pyramid of prev_left_ when the previous frame built
+  // one (the next frame's "previous" pyramid, not built twice); empty
+  // otherwise, and after SetState.
+  std::vector<cv::Mat> prev_left_pyramid_;
   int64_t prev_timestamp_ns_ = 0;
   bool has_prev_ = false;
   std::optional<geometry::SE3d> prev_camera_from_world_;

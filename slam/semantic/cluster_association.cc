@@ -75,14 +75,18 @@ double ClusterAssociator::Score(const Detection& d, const ClusterTrack& c) const
     const std::optional<cv::Rect2d> ref_box =
         !c.predicted_mask.empty() ? c.predicted_box : std::optional<cv::Rect2d>(c.last_box);
     cv::Rect roi;
+    bool disjoint = false;
     if (ref_box && !d.box.empty() && !ref_box->empty()) {
       const cv::Rect2d u = d.box | *ref_box;
       roi = cv::Rect(static_cast<int>(std::floor(u.x)),
                      static_cast<int>(std::floor(u.y)),
                      static_cast<int>(std::ceil(u.width)) + 2,
                      static_cast<int>(std::ceil(u.height)) + 2);
+      // Masks inside boxes that do not meet (a pixel of slack) share no pixel.
+      const cv::Rect2d slack_d(d.box.x - 1, d.box.y - 1, d.box.width + 2, d.box.height + 2);
+      disjoint = (slack_d & *ref_box).empty();
     }
-    overlap = MaskIoU(d.mask, ref_mask, roi);
+    overlap = disjoint ? 0.0 : MaskIoU(d.mask, ref_mask, roi);
   } else {
     overlap = BoxIoU(d.box, c.predicted_box.value_or(c.last_box));
   }

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <map>
 #include <string>
+#include <type_traits>
 
 namespace twist::semantic {
 namespace {
@@ -29,6 +30,23 @@ void ForEachPixel(const cv::Mat& mask, Fn&& fn, cv::Rect roi = cv::Rect()) {
       for (int x = roi.x; x < roi.x + roi.width; ++x) {
         if (row[x] >= 0) fn(x, y, static_cast<int64_t>(row[x]));
       }
+    }
+  }
+}
+
+// Calls fn(x_first, x_last, y, id) for every run of equal labelled pixels
+// along a row.
+template <typename T, typename Fn>
+void ForEachRunOf(const cv::Mat& mask, Fn&& fn) {
+  for (int y = 0; y < mask.rows; ++y) {
+    const T* row = mask.ptr<T>(y);
+    int x = 0;
+    while (x < mask.cols) {
+      const T id = row[x];
+      int end = x + 1;
+      while (end < mask.cols && row[end] == id) ++end;
+      if (!std::is_signed_v<T> || id >= 0) fn(x, end - 1, y, static_cast<int64_t>(id));
+      x = end;
     }
   }
 }
@@ -83,22 +101,20 @@ std::vector<Segment> ExtractSegments(const cv::Mat& mask, int min_pixels, bool t
     int x0 = 1 << 30, y0 = 1 << 30, x1 = -1, y1 = -1;
   };
   std::map<int64_t, Acc> acc;
-  // Labels come in runs along a row: look the map up only when the id changes
-  // (its elements do not move on insertion).
-  int64_t last_id = -1;
-  Acc* last = nullptr;
-  ForEachPixel(mask, [&](int x, int y, int64_t id) {
-    if (last == nullptr || id != last_id) {
-      last = &acc[id];
-      last_id = id;
-    }
-    Acc& a = *last;
-    ++a.n;
-    a.x0 = std::min(a.x0, x);
+  // Labels come in runs along a row: one map look-up and update per run.
+  auto add_run = [&](int x_first, int x_last, int y, int64_t id) {
+    Acc& a = acc[id];
+    a.n += x_last - x_first + 1;
+    a.x0 = std::min(a.x0, x_first);
     a.y0 = std::min(a.y0, y);
-    a.x1 = std::max(a.x1, x);
+    a.x1 = std::max(a.x1, x_last);
     a.y1 = std::max(a.y1, y);
-  });
+  };
+  if (mask.type() == CV_16UC1) {
+    ForEachRunOf<uint16_t>(mask, add_run);
+  } else {
+    ForEachRunOf<int32_t>(mask, add_run);
+  }
   std::vector<Segment> out;
   for (const auto& [id, a] : acc) {
     const PanopticLabel label = DecodePanopticId(id);

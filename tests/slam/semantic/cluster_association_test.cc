@@ -37,6 +37,40 @@ TEST(ClusterAssociation, IoUs) {
   EXPECT_EQ(MaskIoU(a, b, cv::Rect(20, 20, 5, 5)), 0.0);
 }
 
+// Score's overlap is the masks' IoU whether the boxes overlap, touch along
+// an edge or lie apart (it skips the scan when they cannot share a pixel).
+TEST(ClusterAssociation, ScoreOverlapIsTheMaskIoU) {
+  ClusterAssociationOptions options;
+  options.point_weight = 0.0;
+  options.instance_bonus = 0.0;
+  ClusterAssociator associator(options);
+  const cv::Rect cluster_box(10, 10, 8, 6);
+  ClusterTrack c;
+  c.class_id = 26;
+  c.instance_id = 1;
+  c.last_box = cluster_box;
+  c.last_mask = cv::Mat(40, 60, CV_8UC1, cv::Scalar(0));
+  c.last_mask(cluster_box).setTo(255);
+  for (const cv::Rect& box : {cv::Rect(12, 11, 8, 6),    // overlapping
+                              cv::Rect(17, 15, 5, 5),    // one shared pixel
+                              cv::Rect(18, 10, 5, 6),    // touching the right edge
+                              cv::Rect(10, 16, 8, 3),    // touching the bottom edge
+                              cv::Rect(30, 30, 5, 5)}) {  // apart
+    Detection d;
+    d.label = {26, 2};
+    d.box = box;
+    d.mask = cv::Mat(40, 60, CV_8UC1, cv::Scalar(0));
+    d.mask(box).setTo(255);
+    EXPECT_DOUBLE_EQ(associator.Score(d, c), MaskIoU(d.mask, c.last_mask)) << box;
+  }
+  Detection one_pixel;
+  one_pixel.label = {26, 2};
+  one_pixel.box = cv::Rect(17, 15, 5, 5);
+  one_pixel.mask = cv::Mat(40, 60, CV_8UC1, cv::Scalar(0));
+  one_pixel.mask(one_pixel.box).setTo(255);
+  EXPECT_NEAR(associator.Score(one_pixel, c), 1.0 / (48 + 25 - 1), 1e-12);
+}
+
 // Two cars driving side by side to the right, seen for 10 frames; the
 // segmenter swaps their instance ids at frame 4 and again at frame 7, and
 // gives a brand-new id at frame 8.
