@@ -109,7 +109,10 @@ KeyFrame* Map::InsertKeyFrame(std::unique_ptr<KeyFrame> kf) {
 
 MapPoint* Map::InsertPoint(std::unique_ptr<MapPoint> p) {
   MapPoint* raw = p.get();
-  points_[raw->id] = std::move(p);
+  std::unique_ptr<MapPoint>& slot = points_[raw->id];
+  if (slot != nullptr && slot->bad) --num_bad_points_;
+  if (raw->bad) ++num_bad_points_;
+  slot = std::move(p);
   return raw;
 }
 
@@ -141,9 +144,9 @@ int Map::NumGoodKeyFrames() const {
   return n;
 }
 int Map::NumGoodPoints() const {
-  int n = 0;
-  for (const auto& [id, p] : points_) n += !p->bad;
-  return n;
+  // Points leave the map as they go bad (ErasePoint); only a point inserted
+  // bad (a state file's) is held bad, and counted.
+  return static_cast<int>(points_.size()) - num_bad_points_;
 }
 
 void Map::AddObservation(MapPoint* point, KeyFrame* kf, int kp_index) {
@@ -212,6 +215,7 @@ void Map::ErasePoint(int64_t point_id) {
   auto it = points_.find(point_id);
   if (it == points_.end()) return;
   MapPoint* p = it->second.get();
+  if (p->bad) --num_bad_points_;
   p->bad = true;
   for (const auto& [kf_id, idx] : p->observations) {
     KeyFrame* kf = keyframe(kf_id);
@@ -238,6 +242,7 @@ void Map::ReplacePoint(int64_t old_id, int64_t new_id) {
   new_p->visible += old_p->visible;
   new_p->found += old_p->found;
   old_p->observations.clear();
+  if (old_p->bad) --num_bad_points_;
   points_.erase(old_id);
   UpdatePointDescriptor(new_p);
 }

@@ -186,6 +186,7 @@ class Map {
   mutable std::atomic<int> priority_waiters_{0};
   std::map<int64_t, std::unique_ptr<KeyFrame>> keyframes_;
   std::map<int64_t, std::unique_ptr<MapPoint>> points_;
+  int num_bad_points_ = 0;  // points_ held with bad set (NumGoodPoints)
   double disparity_offset_ = 0.0;
   int disparity_offset_updates_ = 0;
   int64_t next_kf_id_ = 0;

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <memory>
 #include <chrono>
 #include <thread>
 
@@ -64,6 +65,27 @@ TEST(Map, IdsComeFromTheMapAndCovisibilityCountsSharedPoints) {
   EXPECT_EQ(map.NumGoodPoints(), 20);
   EXPECT_EQ(a->connections.count(1), 0u);
   for (const auto& [id, p] : map.points()) EXPECT_EQ(p->observations.size(), 2u);
+
+  // A point inserted bad (as a state file may hold one) is not counted, and
+  // erasing or replacing it leaves the count right.
+  auto bad = std::make_unique<MapPoint>();
+  bad->id = 1000;
+  bad->bad = true;
+  map.InsertPoint(std::move(bad));
+  EXPECT_EQ(map.NumGoodPoints(), 20);
+  auto good = std::make_unique<MapPoint>();
+  good->id = 1001;
+  map.InsertPoint(std::move(good));
+  EXPECT_EQ(map.NumGoodPoints(), 21);
+  map.ReplacePoint(1000, 1001);
+  EXPECT_EQ(map.NumGoodPoints(), 21);
+  EXPECT_EQ(map.point(1000), nullptr);
+  map.ErasePoint(1001);
+  map.ErasePoint(map.points().begin()->first);
+  EXPECT_EQ(map.NumGoodPoints(), 19);
+  int counted = 0;
+  for (const auto& [id, p] : map.points()) counted += !p->bad;
+  EXPECT_EQ(counted, 19);
 }
 
 TEST(Map, ReplaceMergesObservationsAndDescriptorIsTheMedoid) {

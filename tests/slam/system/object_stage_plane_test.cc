@@ -133,6 +133,33 @@ class RenderedFrames {
 // favoured ones' budget brought; docs/objects.md §48) are not the object
 // stage's: on the same frames it gives the same objects and planes with them
 // and without them.
+// The keypoint-favouring mask: 200 on dynamic classes, 1 elsewhere and on
+// unlabelled pixels, per pixel in both panoptic types.
+TEST(ObjectStageKeypoints, FavourMaskMarksTheDynamicClassesPixelByPixel) {
+  const joints::ClassTable classes = joints::ClassTable::CityscapesDefault();
+  cv::Mat mask16(12, 40, CV_16UC1, cv::Scalar(7000));  // road
+  mask16(cv::Rect(3, 2, 9, 5)).setTo(cv::Scalar(26001));  // car
+  mask16(cv::Rect(10, 4, 6, 6)).setTo(cv::Scalar(11000));  // stuff beside it
+  mask16(cv::Rect(20, 0, 1, 12)).setTo(cv::Scalar(24002));  // a one-pixel column (person)
+  mask16.at<uint16_t>(5, 30) = 26002;
+  cv::Mat mask32;
+  mask16.convertTo(mask32, CV_32SC1);
+  mask32.at<int32_t>(3, 5) = -1;  // unlabelled inside the car
+  for (const cv::Mat& mask : {mask16, mask32}) {
+    const cv::Mat favour = ObjectStage::FavourMask(mask, classes);
+    ASSERT_EQ(favour.type(), CV_8UC1);
+    ASSERT_EQ(favour.size(), mask.size());
+    for (int y = 0; y < mask.rows; ++y) {
+      for (int x = 0; x < mask.cols; ++x) {
+        const int64_t id = semantic::PanopticIdAt(mask, x, y);
+        const int expected = id >= 0 && classes.IsDynamic(semantic::ClassOf(id)) ? 200 : 1;
+        ASSERT_EQ(favour.at<uint8_t>(y, x), expected) << x << "," << y;
+      }
+    }
+  }
+  EXPECT_TRUE(ObjectStage::FavourMask(cv::Mat(), classes).empty());
+}
+
 TEST(ObjectStageKeypoints, TheCamerasExtraKeypointsAreNotRead) {
   const int kFrames = 8;
   RenderedFrames frames("follow_braking", 1, kFrames, /*extra_camera_keypoints=*/true);
