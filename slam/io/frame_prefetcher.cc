@@ -5,11 +5,15 @@
 #include <utility>
 
 #include "absl/strings/str_cat.h"
+#include "slam/common/thread_priority.h"
 
 namespace twist::io {
 
-FramePrefetcher::FramePrefetcher(ReadFn read, int64_t count, int depth)
-    : read_(std::move(read)), count_(std::max<int64_t>(count, 0)), depth_(std::max(depth, 1)) {
+FramePrefetcher::FramePrefetcher(ReadFn read, int64_t count, int depth, int niceness)
+    : read_(std::move(read)),
+      count_(std::max<int64_t>(count, 0)),
+      depth_(std::max(depth, 1)),
+      niceness_(niceness) {
   if (count_ > 0) thread_ = std::thread([this] { Run(); });
 }
 
@@ -31,6 +35,7 @@ absl::StatusOr<StereoFrame> FramePrefetcher::ReadGuarded(int64_t i) const {
 }
 
 void FramePrefetcher::Run() {
+  SetThisThreadNiceness(niceness_, "frame prefetcher");
   for (int64_t i = 0; i < count_; ++i) {
     {
       std::unique_lock<std::mutex> lock(mu_);

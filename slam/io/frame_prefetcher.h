@@ -34,8 +34,11 @@ class FramePrefetcher {
  public:
   using ReadFn = std::function<absl::StatusOr<StereoFrame>(int64_t)>;
 
-  // Reads frames 0 .. count-1 through `read`, up to `depth` (≥ 1) ahead.
-  FramePrefetcher(ReadFn read, int64_t count, int depth = 2);
+  // Reads frames 0 .. count-1 through `read`, up to `depth` (≥ 1) ahead, on
+  // a thread at nice value `niceness` (> 0: below the consumer's, so that
+  // decoding ahead does not take the CPU from the frames' processing on a
+  // small machine; it is ahead and off the critical path).
+  FramePrefetcher(ReadFn read, int64_t count, int depth = 2, int niceness = 0);
   ~FramePrefetcher();
   FramePrefetcher(const FramePrefetcher&) = delete;
   FramePrefetcher& operator=(const FramePrefetcher&) = delete;
@@ -55,6 +58,7 @@ class FramePrefetcher {
   const ReadFn read_;
   const int64_t count_;
   const int depth_;
+  const int niceness_;
   int64_t taken_ = 0;  // consumer's count
 
   mutable std::mutex mu_;

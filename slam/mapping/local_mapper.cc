@@ -2,9 +2,6 @@
 
 #include <ceres/ceres.h>
 #include <glog/logging.h>
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <climits>
@@ -13,6 +10,7 @@
 #include <map>
 #include <set>
 
+#include "slam/common/thread_priority.h"
 #include "slam/common/timer.h"
 #include "slam/features/feature_matcher.h"
 #include "slam/optimization/cost_functions/reprojection_cost.h"
@@ -761,14 +759,7 @@ std::vector<MappingTimings> MappingThread::TakeTimings() {
 }
 
 void MappingThread::Run() {
-  if (niceness_ > 0) {
-    // This thread only (Linux: a thread's nice value is its own). Failing
-    // to lower it costs speed, not correctness: logged, not fatal.
-    const auto tid = static_cast<id_t>(syscall(SYS_gettid));
-    if (setpriority(PRIO_PROCESS, tid, niceness_) != 0) {
-      PLOG(WARNING) << "mapping thread: setpriority(" << niceness_ << ")";
-    }
-  }
+  SetThisThreadNiceness(niceness_, "mapping thread");
   while (true) {
     int64_t kf_id;
     {

@@ -2,9 +2,12 @@
 // place, bounded read-ahead, early stop, no frames.
 #include "slam/io/frame_prefetcher.h"
 
+#include "slam/common/thread_priority.h"
+
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <stdexcept>
@@ -113,6 +116,27 @@ TEST(FramePrefetcher, StopsEarlyWithoutReadingTheRest) {
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }  // destroyed with the thread waiting for room
   EXPECT_LE(reads.load(), 4);
+}
+
+// The reading thread runs at the nice value asked for (its own: the
+// consumer's stays as it was).
+TEST(FramePrefetcher, ReadsAtItsOwnLowerPriority) {
+  const int consumer = ThisThreadNiceness();
+  std::vector<int> seen;  // written by the prefetcher's thread only
+  {
+    FramePrefetcher frames(
+        [&](int64_t i) -> absl::StatusOr<StereoFrame> {
+          seen.push_back(ThisThreadNiceness());
+          return FakeFrame(i);
+        },
+        3,
+        1,
+        /*niceness=*/std::min(consumer + 7, 19));
+    for (int i = 0; i < 3; ++i) ASSERT_TRUE(frames.Next().ok());
+  }
+  ASSERT_EQ(seen.size(), 3u);
+  for (int n : seen) EXPECT_EQ(n, std::min(consumer + 7, 19));
+  EXPECT_EQ(ThisThreadNiceness(), consumer);
 }
 
 TEST(FramePrefetcher, NoFramesNoThread) {
