@@ -4,8 +4,11 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <functional>
 #include <string>
+#include <thread>
 #include <unordered_map>
 #include <unordered_set>
 
@@ -164,6 +167,24 @@ double Median(std::vector<double> v) {
 
 }  // namespace
 
+namespace {
+
+// fn(0) ... fn(n - 1) on up to `threads` threads (this one and threads - 1
+// started for the call), each index taken once, in no set order.
+void ParallelFor(size_t n, int threads, const std::function<void(size_t)>& fn) {
+  std::atomic<size_t> next{0};
+  auto work = [&] {
+    for (size_t i = next.fetch_add(1); i < n; i = next.fetch_add(1)) fn(i);
+  };
+  std::vector<std::thread> helpers;
+  const size_t extra = std::min(n, static_cast<size_t>(std::max(threads, 1))) - (n > 0 ? 1 : 0);
+  for (size_t t = 0; t < extra; ++t) helpers.emplace_back(work);
+  work();
+  for (std::thread& t : helpers) t.join();
+}
+
+}  // namespace
+
 struct ObjectTracker::FrameContext {
   const ObjectFrameInput& frame;
   SE3d world_from_camera;
@@ -197,6 +218,9 @@ absl::Status ObjectTrackerOptions::Validate() const {
   }
   if (evict_unseen_frames < 0) {
     return absl::InvalidArgumentError("object tracker evict_unseen_frames < 0");
+  }
+  if (num_threads < 1 || num_threads > 64) {
+    return absl::InvalidArgumentError("object tracker num_threads must be in [1, 64]");
   }
   if (max_continuation_gap_frames < 0 || continuation_min_history < 2 ||
       !(continuation_margin_m >= 0.0) ||
@@ -296,7 +320,11 @@ double ObjectTracker::ObjectStereo(const FrameContext& ctx,
   const double u_right = kps.u_right[k];
   if (u_right < 0.0 || !options_.masked_stereo || ctx.frame.right.empty() || det.mask.empty())
     return u_right;
-  auto& cache = ctx.stereo_cache[det.cluster_id];
+  // The cluster's entry exists when the steps run side by side (Process
+  // makes them): then only found, never inserted.
+  auto entry = ctx.stereo_cache.find(det.cluster_id);
+  if (entry == ctx.stereo_cache.end()) entry = ctx.stereo_cache.try_emplace(det.cluster_id).first;
+  auto& cache = entry->second;
   if (auto it = cache.find(k); it != cache.end()) return it->second;
   const double half = kps.stereo_support_px.empty() ? options_.masked_stereo_default_half_px
                                                     : kps.stereo_support_px[k];
@@ -535,7 +563,7 @@ void ObjectTracker::RecordInliers(const FrameContext& ctx,
                                   const TwistEstimate& est,
                                   const std::vector<TwistObservation>& obs,
                                   const std::vector<size_t>& obs_point,
-                                  TrackedObject* o) {
+                                  TrackedObject* o) const {
   o->last_num_inliers = est.num_inliers;
   o->last_sigma_px = est.sigma_px;
   for (ObjectPoint& p : o->points) p.seen_last_frame = false;
@@ -561,7 +589,7 @@ void ObjectTracker::RecordInliers(const FrameContext& ctx,
 void ObjectTracker::AddNewPoints(const FrameContext& ctx,
                                  const ObjectDetectionInput& det,
                                  TrackedObject* o,
-                                 const std::vector<Eigen::Vector2d>& occupied) {
+                                 const std::vector<Eigen::Vector2d>& occupied) const {
   EvictUnseenPoints(ctx, o);
   const FrameKeypoints& kps = ctx.frame.keypoints;
   const SE3d camera_from_object = ctx.frame.camera_from_world * o->world_from_object;
@@ -866,21 +894,47 @@ Vector6d ObjectTracker::FirstStepSeed(const FrameContext& ctx,
   return o.joint.WorldProjector() * seed;
 }
 
+absl::Status ObjectTracker::BuildFlowPyramids(const FrameContext& ctx) const {
+  if (prev_left_pyramid_.empty()) {
+    absl::StatusOr<std::vector<cv::Mat>> prev = SparseFlowPyramid(prev_left_, options_.flow);
+    if (!prev.ok()) return prev.status();
+    ctx.prev_pyramid = *std::move(prev);
+  } else {
+    ctx.prev_pyramid = prev_left_pyramid_;  // shares the buffers
+  }
+  absl::StatusOr<std::vector<cv::Mat>> next = SparseFlowPyramid(ctx.frame.left, options_.flow);
+  if (!next.ok()) {
+    ctx.prev_pyramid.clear();
+    return next.status();
+  }
+  ctx.pyramid = *std::move(next);
+  return absl::OkStatus();
+}
+
+bool ObjectTracker::PrepareSparseFlow(const FrameContext& ctx) const {
+  return !ctx.pyramid.empty() || BuildFlowPyramids(ctx).ok();
+}
+
+void ObjectTracker::Merge(const StepReport& report, const FrameContext& ctx) {
+  stats_.rejected += report.stats.rejected;
+  stats_.manoeuvres += report.stats.manoeuvres;
+  stats_.young_turns_released += report.stats.young_turns_released;
+  stats_.filter_restarts += report.stats.filter_restarts;
+  stats_.tracked += report.stats.tracked;
+  stats_.created += report.stats.created;
+  stats_.reidentified += report.stats.reidentified;
+  stats_.continued += report.stats.continued;
+  stats_.lost += report.stats.lost;
+  stats_.removed += report.stats.removed;
+  ctx.gate_refused.insert(report.gate_refused.begin(), report.gate_refused.end());
+}
+
 absl::StatusOr<std::vector<std::optional<Eigen::Vector2d>>> ObjectTracker::SparseFlow(
     const FrameContext& ctx,
     const std::vector<Eigen::Vector2d>& prev_uv,
     const std::vector<Eigen::Vector2d>& predicted_uv) const {
   if (ctx.pyramid.empty()) {
-    if (prev_left_pyramid_.empty()) {
-      absl::StatusOr<std::vector<cv::Mat>> prev = SparseFlowPyramid(prev_left_, options_.flow);
-      if (!prev.ok()) return prev.status();
-      ctx.prev_pyramid = *std::move(prev);
-    } else {
-      ctx.prev_pyramid = prev_left_pyramid_;  // shares the buffers
-    }
-    absl::StatusOr<std::vector<cv::Mat>> next = SparseFlowPyramid(ctx.frame.left, options_.flow);
-    if (!next.ok()) return next.status();
-    ctx.pyramid = *std::move(next);
+    if (absl::Status st = BuildFlowPyramids(ctx); !st.ok()) return st;
   }
   return TrackSparseFlow(ctx.prev_pyramid, ctx.pyramid, prev_uv, options_.flow, &predicted_uv);
 }
@@ -901,7 +955,8 @@ bool ObjectTracker::ReversesTurn(const TrackedObject& o,
 bool ObjectTracker::Track(const FrameContext& ctx,
                           const ObjectDetectionInput& det,
                           TrackedObject* o,
-                          bool seed_from_detection) {
+                          bool seed_from_detection,
+                          StepReport* report) const {
   const ObjectFrameInput& f = ctx.frame;
   // Constant-velocity prediction, scaled to this frame's duration. A new
   // object has no step yet: no motion, or its detection's image motion.
@@ -1007,7 +1062,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
     if (may_release && static_cast<int>(obs.size()) >= options_.young_turn_release_min_inliers) {
       absl::StatusOr<TwistEstimate> free = solve(start, TwistPrior());
       if (free.ok() && ShowsAYoungTurn(*o, *free)) {
-        ++stats_.young_turns_released;
+        ++report->stats.young_turns_released;
         return *std::move(free);
       }
     }
@@ -1126,7 +1181,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   // max_coast_frames refused steps in a row the object is lost (and
   // re-acquired later).
   auto coast = [&]() {
-    ++stats_.rejected;
+    ++report->stats.rejected;
     if (CoastedFrames(*o) >= options_.max_coast_frames) return false;
     o->world_from_object = predicted;
     o->twist_step = initial;
@@ -1151,7 +1206,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
           !ReversesTurn(*o, initial, measured, ctx.dt)) {
         predicted_covariance += ProcessNoise(*o, ctx.dt, 0.0, manoeuvre);
         passed = FilterStep(*o, o->joint, initial, predicted_covariance, &*est);
-        if (passed) ++stats_.manoeuvres;
+        if (passed) ++report->stats.manoeuvres;
       }
       if (!passed) {
         if (options_.restart_filter_after_refusals <= 0 ||
@@ -1163,7 +1218,7 @@ bool ObjectTracker::Track(const FrameContext& ctx,
         // starts again from it.
         o->twist_covariance_valid = false;
         est->covariance_valid = false;
-        ++stats_.filter_restarts;
+        ++report->stats.filter_restarts;
       }
     }
   }
@@ -1218,7 +1273,8 @@ bool ObjectTracker::Track(const FrameContext& ctx,
 bool ObjectTracker::Reacquire(const FrameContext& ctx,
                               const ObjectDetectionInput& det,
                               TrackedObject* o,
-                              double* score) {
+                              double* score,
+                              StepReport* report) const {
   const ObjectFrameInput& f = ctx.frame;
   const double steps = StepsSinceSeen(f, *o);
   const joints::Joint joint = EffectiveJoint(det.joint);
@@ -1302,7 +1358,7 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
         projector * (n * n * o->twist_covariance) * projector.transpose() +
         n * n * n * ProcessNoise(*o, o->step_seconds);
     if (!FilterStep(*o, joint, initial, predicted_covariance, &*est)) {
-      ctx.gate_refused.insert(o->id);
+      report->gate_refused.push_back(o->id);
       return false;
     }
   }
@@ -1443,33 +1499,37 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
     obj->last_seen_frame = frame.frame_index;
     obj->last_box = det.box;
   };
-  for (const ObjectDetectionInput& det : frame.detections) {
+  // Each detection whose cluster has an object steps that object (tracked
+  // since the last frame: Track; else Reacquire).
+  struct Step {
+    const ObjectDetectionInput* det = nullptr;
     TrackedObject* o = nullptr;
-    for (auto& [id, obj] : objects_) {
-      if (obj.cluster_id == det.cluster_id && handled.count(id) == 0) o = &obj;
-    }
-    if (o == nullptr) {
-      unmatched.push_back(&det);
-      continue;
-    }
-    handled.insert(o->id);
-    bool ok;
-    const bool reacquiring = !(o->frames_lost == 0 && has_prev_);
-    if (!reacquiring) {
+    bool reacquiring = false;
+    bool ok = false;
+    StepReport report;
+  };
+  auto run_step = [&](Step* st) {
+    TrackedObject* o = st->o;
+    const ObjectDetectionInput& det = *st->det;
+    if (!st->reacquiring) {
       UpdateJoint(det.joint, o);
-      ok = Track(ctx, det, o, /*seed_from_detection=*/false);
+      st->ok = Track(ctx, det, o, /*seed_from_detection=*/false, &st->report);
       // A new object's first step, predicted as no motion, found nothing
       // to measure: predicted from its detection's image motion instead.
-      if (!ok && o->step_seconds == 0.0 && options_.seed_first_step_from_box) {
-        ok = Track(ctx, det, o, /*seed_from_detection=*/true);
+      if (!st->ok && o->step_seconds == 0.0 && options_.seed_first_step_from_box) {
+        st->ok = Track(ctx, det, o, /*seed_from_detection=*/true, &st->report);
       }
     } else {
       double score = 0.0;
-      ok = Reacquire(ctx, det, o, &score);
+      st->ok = Reacquire(ctx, det, o, &score, &st->report);
     }
-    if (ok) {
-      o->class_id = det.class_id;
-      mark_seen(det, o);
+  };
+  auto finish_step = [&](const Step& st) {
+    Merge(st.report, ctx);
+    TrackedObject* o = st.o;
+    if (st.ok) {
+      o->class_id = st.det->class_id;
+      mark_seen(*st.det, o);
       ++stats_.tracked;
       RecordPose(ctx, o);
     } else {
@@ -1478,7 +1538,57 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
       // leaves it to the other lost objects and to creation: cluster ids
       // follow the segmentation's association, which can hand an object's
       // cluster to another instance after an occlusion.
-      if (reacquiring) unmatched.push_back(&det);
+      if (st.reacquiring) unmatched.push_back(st.det);
+    }
+  };
+  auto object_of = [&](const ObjectDetectionInput& det) {
+    TrackedObject* o = nullptr;
+    for (auto& [id, obj] : objects_) {
+      if (obj.cluster_id == det.cluster_id && handled.count(id) == 0) o = &obj;
+    }
+    return o;
+  };
+  // The steps touch their own object only (and the frame's caches, made
+  // ready below), so they may run side by side, and the results are the
+  // same in any order; merged in the detections' order. That needs one
+  // detection per cluster (a failed step hands its object back to the
+  // detections after it), which the association gives.
+  std::unordered_set<int64_t> clusters;
+  bool parallel = options_.num_threads > 1 && frame.detections.size() > 1;
+  for (const ObjectDetectionInput& det : frame.detections) {
+    parallel = parallel && clusters.insert(det.cluster_id).second;
+  }
+  if (parallel && frame.flow.empty() && has_prev_) parallel = PrepareSparseFlow(ctx);
+  if (!parallel) {
+    for (const ObjectDetectionInput& det : frame.detections) {
+      TrackedObject* o = object_of(det);
+      if (o == nullptr) {
+        unmatched.push_back(&det);
+        continue;
+      }
+      handled.insert(o->id);
+      Step st{&det, o, !(o->frames_lost == 0 && has_prev_), false, {}};
+      run_step(&st);
+      finish_step(st);
+    }
+  } else {
+    std::vector<Step> steps;
+    std::vector<int> step_of_detection;
+    for (const ObjectDetectionInput& det : frame.detections) {
+      TrackedObject* o = object_of(det);
+      step_of_detection.push_back(o == nullptr ? -1 : static_cast<int>(steps.size()));
+      if (o == nullptr) continue;
+      handled.insert(o->id);
+      steps.push_back(Step{&det, o, !(o->frames_lost == 0 && has_prev_), false, {}});
+      ctx.stereo_cache[det.cluster_id];  // each step's entry, made here
+    }
+    ParallelFor(steps.size(), options_.num_threads, [&](size_t i) { run_step(&steps[i]); });
+    for (size_t d = 0; d < frame.detections.size(); ++d) {
+      if (step_of_detection[d] < 0) {
+        unmatched.push_back(&frame.detections[d]);
+      } else {
+        finish_step(steps[static_cast<size_t>(step_of_detection[d])]);
+      }
     }
   }
   // Objects tracked up to the last frame whose cluster has no detection in
@@ -1507,7 +1617,10 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
           obj.cluster_id == det->cluster_id)
         continue;  // (the cluster's own object was tried above)
       double score = 0.0;
-      if (Reacquire(ctx, *det, &obj, &score)) {
+      StepReport report;
+      const bool ok = Reacquire(ctx, *det, &obj, &score, &report);
+      Merge(report, ctx);
+      if (ok) {
         best = &obj;
         break;
       }

@@ -408,6 +408,12 @@ struct ObjectTrackerOptions {
   // at most this many removed objects (oldest removal dropped).
   int max_trajectory_poses = 18000;
   int max_removed_trajectories = 500;
+  // Threads the steps of a frame's objects run on (each object's step
+  // touches that object only; the results are the same for any value, the
+  // steps merged in the detections' order). 2: the tracking thread and one
+  // more, on the second core of the 2-core machines the service runs on,
+  // where the other work there is the background mapper at low priority.
+  int num_threads = 2;
   // Stationarity (parked cars). A step is "still" when the zero twist
   // explains the inlier observations about as well as the estimate,
   //   Σ ‖r_j(0)/σ‖² − Σ ‖r_j(ξ*)/σ‖² < χ²_k(stationary_confidence),
@@ -609,6 +615,11 @@ class ObjectTracker {
 
  private:
   struct FrameContext;
+  // The sparse flow's pyramids of the previous and this frame's left image
+  // into ctx (SparseFlow builds them on first use); PrepareSparseFlow
+  // builds them ahead of steps that run side by side, false if it cannot.
+  absl::Status BuildFlowPyramids(const FrameContext& ctx) const;
+  bool PrepareSparseFlow(const FrameContext& ctx) const;
   // Sparse flow of the points `prev_uv` of the previous left image into this
   // frame's, seeded at `predicted_uv` (TrackSparseFlow on the frame's shared
   // pyramids).
@@ -616,13 +627,26 @@ class ObjectTracker {
       const FrameContext& ctx,
       const std::vector<Eigen::Vector2d>& prev_uv,
       const std::vector<Eigen::Vector2d>& predicted_uv) const;
+  // What an object's step (Track, Reacquire) reports besides the object
+  // itself: kept apart from the tracker, so that the steps of a frame's
+  // objects can run side by side (ObjectTrackerOptions::num_threads), and
+  // merged in the detections' order.
+  struct StepReport {
+    ObjectTrackerStats stats;  // the step's counts (added to stats_)
+    // Objects whose re-acquisition the filter's gate refused
+    // (FrameContext::gate_refused).
+    std::vector<int64_t> gate_refused;
+  };
+  // Adds `report` to the frame's statistics and context.
+  void Merge(const StepReport& report, const FrameContext& ctx);
   // A tracked step; a new object's first step (no motion yet) is predicted
   // as no motion, or with seed_from_detection from its detection
   // (FirstStepSeed).
   bool Track(const FrameContext& ctx,
              const ObjectDetectionInput& det,
              TrackedObject* object,
-             bool seed_from_detection);
+             bool seed_from_detection,
+             StepReport* report) const;
   // Whether a young object's step estimated without the turn prior shows a
   // turn clearly (ObjectTrackerOptions::young_turn_release_sigmas).
   bool ShowsAYoungTurn(const TrackedObject& object, const TwistEstimate& free) const;
@@ -681,7 +705,8 @@ class ObjectTracker {
   bool Reacquire(const FrameContext& ctx,
                  const ObjectDetectionInput& det,
                  TrackedObject* object,
-                 double* score);
+                 double* score,
+                 StepReport* report) const;
   bool Create(const FrameContext& ctx, const ObjectDetectionInput& det, TrackedObject* object);
   // The share of `created`'s points (just created) inside the predicted body
   // of `lost` (ObjectTrackerOptions::continuation_*), and the predicted pose;
@@ -726,11 +751,11 @@ class ObjectTracker {
                      const TwistEstimate& est,
                      const std::vector<TwistObservation>& obs,
                      const std::vector<size_t>& obs_point,
-                     TrackedObject* object);
+                     TrackedObject* object) const;
   void AddNewPoints(const FrameContext& ctx,
                     const ObjectDetectionInput& det,
                     TrackedObject* object,
-                    const std::vector<Eigen::Vector2d>& occupied);
+                    const std::vector<Eigen::Vector2d>& occupied) const;
   void RecordPose(const FrameContext& ctx, TrackedObject* object);
   joints::Joint EffectiveJoint(const joints::Joint& joint) const;
   // Sets the object's joint for this frame (see follow_parent_plane).

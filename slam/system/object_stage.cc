@@ -33,8 +33,10 @@ objects::MaskedStereoOptions MaskedStereoOptionsFrom(const SlamOptions& o) {
   return m;
 }
 
-objects::ObjectTrackerOptions TrackerOptionsFrom(const SlamOptions& o) {
+objects::ObjectTrackerOptions TrackerOptionsFrom(const SlamOptions& o,
+                                                const ObjectStageOptions& stage) {
   objects::ObjectTrackerOptions t;
+  t.num_threads = stage.tracker_threads;
   t.constrained = o.constrain_objects;
   t.masked_stereo_options = MaskedStereoOptionsFrom(o);
   return t;
@@ -84,7 +86,7 @@ ObjectStage::ObjectStage(const SessionConfig& config, const ObjectStageOptions& 
     : config_(config),
       options_(options),
       associator_(semantic::ClusterAssociationOptions{}),
-      tracker_(config.camera, TrackerOptionsFrom(config.options)),
+      tracker_(config.camera, TrackerOptionsFrom(config.options, options)),
       rng_(config.options.seed) {
   std::unordered_set<int> dynamic;
   for (const joints::ClassInfo& c : config_.classes.classes()) {

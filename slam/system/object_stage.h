@@ -55,6 +55,9 @@ class BinaryReader;
 
 struct ObjectStageOptions {
   int min_segment_pixels = 400;     // smaller instance segments are ignored
+  // The object tracker's threads (ObjectTrackerOptions::num_threads: the
+  // objects' steps side by side; the same results for any value).
+  int tracker_threads = 2;
   double max_plane_depth_m = 30.0;  // plane points further away are not used
   int max_plane_points = 4000;      // per plane class (oldest dropped)
   double plane_inlier_m = 0.05;     // RANSAC inlier distance

@@ -205,6 +205,43 @@ TEST(ObjectStageKeypoints, TheCamerasExtraKeypointsAreNotRead) {
   EXPECT_GT(tracked, kFrames);      // and objects
 }
 
+// The objects' steps run side by side (ObjectStageOptions::tracker_threads):
+// every object's pose, state and point count, and every cluster event, are
+// those of the steps one after the other, on a scene with several cars.
+TEST(ObjectStageThreads, TheObjectsStepsGiveTheSameResultsOnOneThreadOrTwo) {
+  const int kFrames = 14;
+  RenderedFrames frames("intersection", 2, kFrames);
+  ObjectStageOptions one_thread;
+  one_thread.tracker_threads = 1;
+  ObjectStage serial(frames.config(), one_thread), parallel(frames.config());
+  int frames_with_several = 0;
+  for (int i = 0; i < kFrames; ++i) {
+    std::shared_ptr<map::FrameFeatures> features;
+    const SE3d camera_from_world = frames.scenario().WorldFromCamera(i).Inverse();
+    const ObjectStageInput in = frames.Frame(i, camera_from_world, &features);
+    absl::StatusOr<ObjectStageOutput> a = serial.Process(in);
+    absl::StatusOr<ObjectStageOutput> b = parallel.Process(in);
+    ASSERT_TRUE(a.ok() && b.ok());
+    ASSERT_EQ(a->objects.size(), b->objects.size()) << i;
+    int tracked = 0;
+    for (size_t o = 0; o < a->objects.size(); ++o) {
+      EXPECT_EQ(a->objects[o].id, b->objects[o].id);
+      EXPECT_EQ(a->objects[o].state, b->objects[o].state);
+      EXPECT_EQ(a->objects[o].num_points, b->objects[o].num_points);
+      EXPECT_EQ(a->objects[o].world_from_object.matrix(), b->objects[o].world_from_object.matrix())
+          << "frame " << i << " object " << a->objects[o].id;
+      tracked += a->objects[o].state == ObjectState::kTracked;
+    }
+    frames_with_several += tracked >= 2;
+    ASSERT_EQ(a->cluster_events.size(), b->cluster_events.size());
+    for (size_t e = 0; e < a->cluster_events.size(); ++e) {
+      EXPECT_EQ(a->cluster_events[e].cluster_id, b->cluster_events[e].cluster_id);
+      EXPECT_EQ(a->cluster_events[e].plane, b->cluster_events[e].plane);
+    }
+  }
+  EXPECT_GE(frames_with_several, kFrames / 2);  // the steps did run side by side
+}
+
 TEST(ObjectStagePlane, MaskedPlaneStereoFitsTheLevelRoad) {
   // A lead car 15 m ahead in the camera's lane, parked cars on both sides.
   const int kFrames = 12;
