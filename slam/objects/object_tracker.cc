@@ -282,6 +282,9 @@ absl::Status ObjectTrackerOptions::Validate() const {
     return absl::InvalidArgumentError(
         "object tracker needs tracked_stereo_search_fraction in [0, 1]");
   }
+  if (!(max_lateral_acceleration_mps2 >= 0.0)) {
+    return absl::InvalidArgumentError("object tracker needs max_lateral_acceleration_mps2 >= 0");
+  }
   if (!(manoeuvre_angular_acceleration_sigma_radps2 >= 0.0) ||
       !(manoeuvre_max_reversal_turn_radps >= 0.0)) {
     return absl::InvalidArgumentError(
@@ -838,6 +841,17 @@ TwistPrior ObjectTracker::TurnPrior(const joints::Joint& joint,
   return prior;
 }
 
+double ObjectTracker::LateralAcceleration(const TrackedObject& o,
+                                          const Vector6d& twist,
+                                          double seconds) const {
+  if (o.joint.type() != joints::JointType::kPlanar || !(seconds > 0.0)) return 0.0;
+  const Eigen::Vector3d axis = o.joint.world_from_joint().rotation().col(2);
+  const Eigen::Vector3d omega = twist.tail<3>();
+  // The object's origin moves by v + ω × t in a world-frame step.
+  const double step_m = (twist.head<3>() + omega.cross(o.world_from_object.translation())).norm();
+  return std::abs(axis.dot(omega)) * step_m / (seconds * seconds);
+}
+
 bool ObjectTracker::ShowsAYoungTurn(const TrackedObject& o, const TwistEstimate& free) const {
   if (!free.success || !free.covariance_valid ||
       free.num_inliers < options_.young_turn_release_min_inliers ||
@@ -920,6 +934,7 @@ void ObjectTracker::Merge(const StepReport& report, const FrameContext& ctx) {
   stats_.manoeuvres += report.stats.manoeuvres;
   stats_.young_turns_released += report.stats.young_turns_released;
   stats_.filter_restarts += report.stats.filter_restarts;
+  stats_.beyond_grip += report.stats.beyond_grip;
   stats_.tracked += report.stats.tracked;
   stats_.created += report.stats.created;
   stats_.reidentified += report.stats.reidentified;
@@ -1196,6 +1211,14 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   if (filtered) {
     if (o->twist_covariance_valid) predicted_covariance = PredictedCovariance(ctx, *o);
     const Vector6d measured = est->twist;
+    // A turn no tyre would hold is not the car's motion. (After a coasted
+    // frame the step also corrects the prediction that stood: not a rate,
+    // and the filter's restart, below, deals with it.)
+    if (options_.max_lateral_acceleration_mps2 > 0.0 && CoastedFrames(*o) == 0 &&
+        LateralAcceleration(*o, measured, ctx.dt) > options_.max_lateral_acceleration_mps2) {
+      ++report->stats.beyond_grip;
+      return coast();
+    }
     if (!FilterStep(*o, o->joint, initial, predicted_covariance, &*est)) {
       // A turn's onset (manoeuvre_angular_acceleration_sigma_radps2). A step
       // that fails this gate too coasts with the wider covariance, so that

@@ -1082,6 +1082,51 @@ TEST(ObjectTracker, ACarEnteringATurnIsFollowed) {
   EXPECT_TRUE(lost[0] || worst[0] > 3.0);
 }
 
+// A turn that would take more grip than a tyre has is not the car's
+// motion: a car at 15 m/s measured entering a turn of 0.7 rad/s (10.5
+// m/s², the rate the manoeuvre gate lets a car at 8 m/s into) coasts on its
+// straight prediction; with the bound off the tracker follows it.
+TEST(ObjectTracker, ATurnBeyondATyresGripCoasts) {
+  for (bool bound : {true, false}) {
+    CarSequence seq(0.3, 53, 3.0, 60, 12.0);
+    ObjectTrackerOptions options;
+    if (!bound) options.max_lateral_acceleration_mps2 = 0.0;
+    ObjectTracker tracker(seq.camera(), options);
+    Vector6d straight, turning;  // per frame, in the car's frame (joint axes)
+    straight << 0.0, 1.5, 0.0, 0.0, 0.0, 0.0;
+    turning << 0.0, 1.5, 0.0, 0.0, 0.0, 0.07;
+    seq.set_step(seq.world_from_object().Adjoint() * straight);
+    int beyond = 0, manoeuvres = 0;
+    SE3d before;
+    for (int i = 0; i <= 12; ++i) {
+      if (i == 12) seq.set_step(seq.world_from_object().Adjoint() * turning);
+      const auto results = tracker.Process(seq.Next(9, true));
+      ASSERT_TRUE(results.ok());
+      ASSERT_EQ(results->size(), 1u);
+      const ObjectResult& r = (*results)[0];
+      ASSERT_EQ(r.state, i == 0 ? ObjectState::kNew : ObjectState::kTracked) << "frame " << i;
+      beyond += tracker.last_stats().beyond_grip;
+      manoeuvres += tracker.last_stats().manoeuvres;
+      if (i < 12) {
+        before = r.world_from_object;
+        continue;
+      }
+      const double turned = RotationErrorDeg(r.world_from_object, before);
+      std::printf("[grip bound %s] turned %.2f deg in the turn's first frame (true 4.01)\n",
+                  bound ? "on" : "off",
+                  turned);
+      if (bound) {
+        EXPECT_EQ(beyond, 1);
+        EXPECT_LT(turned, 0.5);  // coasted straight
+      } else {
+        EXPECT_EQ(beyond, 0);
+        EXPECT_EQ(manoeuvres, 1);
+        EXPECT_GT(turned, 3.0);  // followed the turn
+      }
+    }
+  }
+}
+
 // A new car 25 m straight ahead, seen from behind, 20 points with 2 px of
 // keypoint noise: its yaw is barely observed. The zero-turn prior on its
 // first steps keeps its heading; without it the first free steps turn it,
@@ -1606,6 +1651,9 @@ TEST(ObjectTracker, TheStepAfterAReacquisitionIsGated) {
   for (bool gate : {true, false}) {
     ObjectTrackerOptions options;
     options.gate_after_reacquisition = gate;
+    // The glitch turns the car by 0.1 rad at once, beyond any tyre's grip
+    // (ATurnBeyondATyresGripCoasts): off, to see the gate alone.
+    options.max_lateral_acceleration_mps2 = 0.0;
     HiddenCar car(8, options);
     ASSERT_GE(car.id, 0);
     ASSERT_TRUE(car.tracker.Process(car.seq.Next(11, true)).ok());
