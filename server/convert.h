@@ -21,6 +21,7 @@
 #include "twistslam/v1/map.pb.h"
 #include "twistslam/v1/session.pb.h"
 #include "twistslam/v1/stream.pb.h"
+#include "wire/session_proto.h"
 
 namespace twist::server {
 
@@ -37,7 +38,10 @@ void ToProto(const Eigen::Vector4d& plane, pb::Plane* out);
 
 // ---------------------------------------------------------------------------
 // Session configuration.
-pb::JointType JointTypeToProto(joints::JointType type);
+// Calibration, class table and options to the wire: the client's too
+// (wire/session_proto.h).
+using wire::JointTypeToProto;
+using wire::ToProto;
 absl::StatusOr<joints::JointType> JointTypeFromProto(pb::JointType type);
 // Engine joint names ("planar", ...) -> enum; JOINT_TYPE_UNSPECIFIED if unknown.
 pb::JointType JointTypeNameToProto(const std::string& name);
@@ -45,15 +49,12 @@ pb::JointType JointTypeNameToProto(const std::string& name);
 // Builds and validates the class table + joint graph; empty -> Cityscapes
 // defaults.
 absl::StatusOr<joints::ClassTable> ClassTableFromProto(const pb::ClassTable& table);
-void ToProto(const joints::ClassTable& table, pb::ClassTable* out);
 
 // Overrides the fields set in `in` on top of `*options` (the server's
 // defaults). Range checks are the engine's (SessionConfig::Validate via
 // SlamSystem::Create); this only rejects values that cannot be represented.
 absl::Status ApplyOptions(const pb::SlamOptions& in, SlamOptions* options);
-void ToProto(const SlamOptions& options, pb::SlamOptions* out);
 
-void ToProto(const geometry::StereoCamera& camera, pb::StereoCalibration* out);
 // The rectified camera described by fx..height (unrectified part ignored).
 // Checks the values the way StereoCamera::Validate does, with messages.
 absl::StatusOr<geometry::StereoCamera> RectifiedCameraFromProto(const pb::StereoCalibration& calib);

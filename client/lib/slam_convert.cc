@@ -4,6 +4,7 @@
 #include <google/protobuf/message.h>
 
 #include "absl/strings/str_cat.h"
+#include "wire/session_proto.h"
 
 namespace twist::client {
 namespace {
@@ -41,51 +42,9 @@ geometry::SE3d PoseFromProto(const pb::Pose& pose) {
 
 pb::SessionConfig SessionConfigToProto(const SessionConfig& config) {
   pb::SessionConfig out;
-  pb::StereoCalibration* c = out.mutable_calibration();
-  c->set_fx(config.camera.fx);
-  c->set_fy(config.camera.fy);
-  c->set_cx(config.camera.cx);
-  c->set_cy(config.camera.cy);
-  c->set_baseline(config.camera.baseline);
-  c->set_width(config.camera.width);
-  c->set_height(config.camera.height);
-  for (const joints::ClassInfo& info : config.classes.classes()) {
-    pb::SemanticClass* sc = out.mutable_class_table()->add_classes();
-    sc->set_id(info.id);
-    sc->set_name(info.name);
-    sc->set_is_dynamic(info.is_dynamic);
-    sc->set_fit_plane(info.fit_plane);
-    if (info.parent_id >= 0) {
-      pb::JointEdge* e = out.mutable_class_table()->add_joints();
-      e->set_child_class_id(info.id);
-      e->set_parent_class_id(info.parent_id);
-      e->set_joint_type(static_cast<pb::JointType>(static_cast<int>(info.joint) + 1));
-      e->set_pitch(info.pitch);
-    }
-  }
-  const SlamOptions& o = config.options;
-  pb::SlamOptions* po = out.mutable_options();
-  po->set_num_features(o.num_features);
-  po->set_num_levels(o.num_levels);
-  po->set_scale_factor(o.scale_factor);
-  po->set_fast_threshold(o.fast_threshold);
-  po->set_max_depth_baselines(o.max_depth_baselines);
-  po->set_mapping_mode(o.mapping_mode == MappingMode::kBackground ? pb::MAPPING_MODE_BACKGROUND
-                                                                  : pb::MAPPING_MODE_SYNCHRONOUS);
-  po->set_local_ba_iterations(o.local_ba_iterations);
-  po->set_num_threads(o.num_threads);
-  po->set_use_masks(o.use_masks);
-  po->set_track_objects(o.track_objects);
-  po->set_constrain_objects(o.constrain_objects);
-  po->set_temporal_window_s(o.temporal_window_s);
-  po->set_seed(o.seed);
-  po->set_object_ba_window_frames(o.object_ba_window_frames);
-  po->set_object_ba_iterations(o.object_ba_iterations);
-  po->set_parked_objects_static(o.parked_objects_static);
-  po->set_dense_keyframes(o.dense_keyframes);
-  po->set_extra_camera_keypoints(o.extra_camera_keypoints);
-  po->set_stereo_by_point_depth(o.stereo_by_point_depth);
-  po->set_disparity_offset_px(o.disparity_offset_px);
+  wire::ToProto(config.camera, out.mutable_calibration());
+  wire::ToProto(config.classes, out.mutable_class_table());
+  wire::ToProto(config.options, out.mutable_options());
   return out;
 }
 
