@@ -5,8 +5,6 @@
 #include <sys/syscall.h>
 #include <unistd.h>
 
-#include <cerrno>
-
 namespace twist {
 namespace {
 
@@ -23,9 +21,6 @@ bool SetThisThreadNiceness(int niceness, const char* what) {
   return true;
 }
 
-int ThisThreadNiceness() {
-  errno = 0;
-  return getpriority(PRIO_PROCESS, ThisThreadId());
-}
+int ThisThreadNiceness() { return getpriority(PRIO_PROCESS, ThisThreadId()); }
 
 }  // namespace twist

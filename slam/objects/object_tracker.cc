@@ -22,6 +22,12 @@ namespace {
 
 // Frames in a row, up to the last one, in which the object coasted (a
 // refused step: no observation kept).
+// How far the object's origin moves in the world-frame step `twist`:
+// v + ω × t, t its position.
+double OriginStepLength(const TrackedObject& o, const Vector6d& twist) {
+  return (twist.head<3>() + twist.tail<3>().cross(o.world_from_object.translation())).norm();
+}
+
 int CoastedFrames(const TrackedObject& o) {
   int coasted = 0;
   for (auto it = o.history.rbegin(); it != o.history.rend() && it->observations.empty(); ++it)
@@ -172,12 +178,13 @@ namespace {
 // fn(0) ... fn(n - 1) on up to `threads` threads (this one and threads - 1
 // started for the call), each index taken once, in no set order.
 void ParallelFor(size_t n, int threads, const std::function<void(size_t)>& fn) {
+  if (n == 0) return;
   std::atomic<size_t> next{0};
   auto work = [&] {
     for (size_t i = next.fetch_add(1); i < n; i = next.fetch_add(1)) fn(i);
   };
   std::vector<std::thread> helpers;
-  const size_t extra = std::min(n, static_cast<size_t>(std::max(threads, 1))) - (n > 0 ? 1 : 0);
+  const size_t extra = std::min(n, static_cast<size_t>(std::max(threads, 1))) - 1;
   for (size_t t = 0; t < extra; ++t) helpers.emplace_back(work);
   work();
   for (std::thread& t : helpers) t.join();
@@ -846,10 +853,7 @@ double ObjectTracker::LateralAcceleration(const TrackedObject& o,
                                           double seconds) const {
   if (o.joint.type() != joints::JointType::kPlanar || !(seconds > 0.0)) return 0.0;
   const Eigen::Vector3d axis = o.joint.world_from_joint().rotation().col(2);
-  const Eigen::Vector3d omega = twist.tail<3>();
-  // The object's origin moves by v + ω × t in a world-frame step.
-  const double step_m = (twist.head<3>() + omega.cross(o.world_from_object.translation())).norm();
-  return std::abs(axis.dot(omega)) * step_m / (seconds * seconds);
+  return std::abs(axis.dot(twist.tail<3>())) * OriginStepLength(o, twist) / (seconds * seconds);
 }
 
 bool ObjectTracker::ShowsAYoungTurn(const TrackedObject& o, const TwistEstimate& free) const {
@@ -866,9 +870,7 @@ bool ObjectTracker::ShowsAYoungTurn(const TrackedObject& o, const TwistEstimate&
       std::abs(rate) <= options_.young_turn_release_sigmas * std::sqrt(variance)) {
     return false;
   }
-  // The object's origin moves by v + ω × t in a world-frame step.
-  const double speed =
-      (free.twist.head<3>() + omega.cross(o.world_from_object.translation())).norm();
+  const double speed = OriginStepLength(o, free.twist);  // m per frame
   constexpr double kTurnSlackRad = 0.01;
   return std::abs(rate) <= options_.young_turn_release_max_curvature_per_m * speed + kTurnSlackRad;
 }
@@ -930,17 +932,7 @@ bool ObjectTracker::PrepareSparseFlow(const FrameContext& ctx) const {
 }
 
 void ObjectTracker::Merge(const StepReport& report, const FrameContext& ctx) {
-  stats_.rejected += report.stats.rejected;
-  stats_.manoeuvres += report.stats.manoeuvres;
-  stats_.young_turns_released += report.stats.young_turns_released;
-  stats_.filter_restarts += report.stats.filter_restarts;
-  stats_.beyond_grip += report.stats.beyond_grip;
-  stats_.tracked += report.stats.tracked;
-  stats_.created += report.stats.created;
-  stats_.reidentified += report.stats.reidentified;
-  stats_.continued += report.stats.continued;
-  stats_.lost += report.stats.lost;
-  stats_.removed += report.stats.removed;
+  stats_ += report.stats;
   ctx.gate_refused.insert(report.gate_refused.begin(), report.gate_refused.end());
 }
 

@@ -585,6 +585,21 @@ struct ObjectTrackerStats {
   int young_turns_released = 0;
   int filter_restarts = 0;  // refused steps taken as measured (restart_filter_after_refusals)
   int beyond_grip = 0;      // steps refused for their lateral acceleration
+
+  ObjectTrackerStats& operator+=(const ObjectTrackerStats& o) {
+    tracked += o.tracked;
+    created += o.created;
+    reidentified += o.reidentified;
+    continued += o.continued;
+    lost += o.lost;
+    removed += o.removed;
+    rejected += o.rejected;
+    manoeuvres += o.manoeuvres;
+    young_turns_released += o.young_turns_released;
+    filter_restarts += o.filter_restarts;
+    beyond_grip += o.beyond_grip;
+    return *this;
+  }
 };
 
 class ObjectTracker {

@@ -5,7 +5,6 @@
 #include <cmath>
 #include <map>
 #include <string>
-#include <type_traits>
 
 namespace twist::semantic {
 namespace {
@@ -30,23 +29,6 @@ void ForEachPixel(const cv::Mat& mask, Fn&& fn, cv::Rect roi = cv::Rect()) {
       for (int x = roi.x; x < roi.x + roi.width; ++x) {
         if (row[x] >= 0) fn(x, y, static_cast<int64_t>(row[x]));
       }
-    }
-  }
-}
-
-// Calls fn(x_first, x_last, y, id) for every run of equal labelled pixels
-// along a row.
-template <typename T, typename Fn>
-void ForEachRunOf(const cv::Mat& mask, Fn&& fn) {
-  for (int y = 0; y < mask.rows; ++y) {
-    const T* row = mask.ptr<T>(y);
-    int x = 0;
-    while (x < mask.cols) {
-      const T id = row[x];
-      int end = x + 1;
-      while (end < mask.cols && row[end] == id) ++end;
-      if (!std::is_signed_v<T> || id >= 0) fn(x, end - 1, y, static_cast<int64_t>(id));
-      x = end;
     }
   }
 }
@@ -110,11 +92,7 @@ std::vector<Segment> ExtractSegments(const cv::Mat& mask, int min_pixels, bool t
     a.x1 = std::max(a.x1, x_last);
     a.y1 = std::max(a.y1, y);
   };
-  if (mask.type() == CV_16UC1) {
-    ForEachRunOf<uint16_t>(mask, add_run);
-  } else {
-    ForEachRunOf<int32_t>(mask, add_run);
-  }
+  ForEachLabelRun(mask, add_run);
   std::vector<Segment> out;
   for (const auto& [id, a] : acc) {
     const PanopticLabel label = DecodePanopticId(id);

@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <opencv2/core.hpp>
 #include <optional>
+#include <type_traits>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -55,6 +56,33 @@ std::optional<PanopticLabel> LabelAt(const cv::Mat& mask, const Eigen::Vector2d&
 // Labels of many keypoints at once (same rules as LabelAt).
 std::vector<std::optional<PanopticLabel>> LabelsAt(const cv::Mat& mask,
                                                    const std::vector<Eigen::Vector2d>& uvs);
+
+// Calls fn(x_first, x_last, y, id) for every run of pixels with one panoptic
+// id along a row (x_first..x_last inclusive), rows top to bottom; negative
+// (void) CV_32SC1 runs are skipped. The mask must be CV_16UC1 or CV_32SC1.
+template <typename Fn>
+void ForEachLabelRun(const cv::Mat& mask, Fn&& fn) {
+  auto rows = [&](auto zero) {
+    using T = decltype(zero);
+    for (int y = 0; y < mask.rows; ++y) {
+      const T* row = mask.ptr<T>(y);
+      for (int x = 0; x < mask.cols;) {
+        const T id = row[x];
+        int end = x + 1;
+        while (end < mask.cols && row[end] == id) ++end;
+        bool labelled = true;
+        if constexpr (std::is_signed_v<T>) labelled = id >= 0;
+        if (labelled) fn(x, end - 1, y, static_cast<int64_t>(id));
+        x = end;
+      }
+    }
+  };
+  if (mask.type() == CV_16UC1) {
+    rows(uint16_t{0});
+  } else {
+    rows(int32_t{0});
+  }
+}
 
 // One segment of the mask: every pixel with the same panoptic id.
 struct Segment {

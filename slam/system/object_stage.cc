@@ -104,30 +104,13 @@ cv::Mat ObjectStage::FavourMask(const cv::Mat& panoptic, const joints::ClassTabl
   if (panoptic.empty()) return cv::Mat();
   CHECK(panoptic.type() == CV_16UC1 || panoptic.type() == CV_32SC1)
       << "panoptic mask must be CV_16UC1 or CV_32SC1";
+  // 200 on the pixels of dynamic classes, 1 elsewhere (and on void pixels).
   cv::Mat favour(panoptic.size(), CV_8UC1, cv::Scalar(1));
-  // 200 on the pixels of dynamic classes; the class table is looked up once
-  // per run of one class along a row.
-  auto mark_row = [&](const auto* row, uint8_t* out) {
-    int last_class = -1;
-    bool last_dynamic = false;
-    for (int x = 0; x < panoptic.cols; ++x) {
-      const int64_t id = row[x];
-      if (id < 0) continue;  // unlabelled (CV_32SC1)
-      const int c = semantic::ClassOf(id);
-      if (c != last_class) {
-        last_class = c;
-        last_dynamic = classes.IsDynamic(c);
-      }
-      if (last_dynamic) out[x] = 200;
-    }
-  };
-  for (int y = 0; y < panoptic.rows; ++y) {
-    if (panoptic.type() == CV_16UC1) {
-      mark_row(panoptic.ptr<uint16_t>(y), favour.ptr<uint8_t>(y));
-    } else {
-      mark_row(panoptic.ptr<int32_t>(y), favour.ptr<uint8_t>(y));
-    }
-  }
+  semantic::ForEachLabelRun(panoptic, [&](int x_first, int x_last, int y, int64_t id) {
+    if (!classes.IsDynamic(semantic::ClassOf(id))) return;
+    uint8_t* out = favour.ptr<uint8_t>(y);
+    std::fill(out + x_first, out + x_last + 1, uint8_t{200});
+  });
   return favour;
 }
 
