@@ -43,6 +43,7 @@ std::optional<double> MaskedDisparityUncorrected(const cv::Mat& left,
     int x;
     double a;  // left grey level, then less its mean
     double dx, dy;
+    double b = 0.0, slope = 0.0;  // the right image at the first estimate
   };
   const int side = 2 * h + 1;
   std::vector<Pixel> px;
@@ -119,8 +120,12 @@ std::optional<double> MaskedDisparityUncorrected(const cv::Mat& left,
   const int right_cols = right.cols;
   auto sample = [&](const Pixel& p, double* b, double* slope) __attribute__((always_inline)) {
     const double x = p.x - d - gx * p.dx - gy * p.dy;
-    const int x0 = static_cast<int>(std::floor(x));
-    if (x0 < 1 || x0 + 2 >= right_cols) return false;
+    // floor(x) < 1 exactly when x < 1; past that test truncation is the
+    // floor (std::floor is a library call on the baseline x86-64 target,
+    // the largest cost of this loop).
+    if (!(x >= 1.0) || x >= right_cols) return false;
+    const int x0 = static_cast<int>(x);
+    if (x0 + 2 >= right_cols) return false;
     const double t = x - x0;
     const uint8_t* row = p.right_row;
     *b = (1.0 - t) * row[x0] + t * row[x0 + 1];
@@ -128,12 +133,14 @@ std::optional<double> MaskedDisparityUncorrected(const cv::Mat& left,
     return true;
   };
   {
-    // Initial gain and offset from the means and deviations at d.
-    double sb = 0.0, sbb = 0.0, b = 0.0, slope = 0.0;
-    for (const Pixel& p : px) {
-      if (!sample(p, &b, &slope)) return std::nullopt;
-      sb += b;
-      sbb += b * b;
+    // Initial gain and offset from the means and deviations at d. The
+    // samples are kept: the first iteration reads the right image where
+    // this pass did (the plane moves only after it).
+    double sb = 0.0, sbb = 0.0;
+    for (Pixel& p : px) {
+      if (!sample(p, &p.b, &p.slope)) return std::nullopt;
+      sb += p.b;
+      sbb += p.b * p.b;
     }
     const double var_b = (sbb - sb * sb / n) / n;
     if (var_b <= 1e-9) return std::nullopt;
@@ -144,52 +151,55 @@ std::optional<double> MaskedDisparityUncorrected(const cv::Mat& left,
   using Matrix5d = Eigen::Matrix<double, 5, 5>;
   for (int it = 0; it < options.gauss_newton_iterations; ++it) {
     // The normal equations' lower triangle (LDLT reads no other) and
-    // right-hand side, accumulated in scalars (j4 = 1 exactly).
-    double h00 = 0, h10 = 0, h11 = 0, h20 = 0, h21 = 0, h22 = 0, h30 = 0, h31 = 0, h32 = 0, h33 = 0,
-           h40 = 0, h41 = 0, h42 = 0, h43 = 0, h44 = 0;
-    double r0 = 0, r1 = 0, r2 = 0, r3 = 0, r4 = 0;
+    // right-hand side, accumulated two entries at a time in packed pairs
+    // (half the additions; each lane takes the same products and sums, in
+    // the same order, as a scalar of its own would, so the result is bit
+    // for bit the scalar one). j = (j0, j1, j2, j3, 1): h44 is the count,
+    // h4k the sums of jk.
+    using Pair = Eigen::Array2d;
+    Pair h00_h10 = Pair::Zero(), h20_h30 = Pair::Zero(), h21_h31 = Pair::Zero(),
+         h22_h32 = Pair::Zero(), h11_h33 = Pair::Zero(), h40_h41 = Pair::Zero(),
+         h42_h43 = Pair::Zero(), r0_r1 = Pair::Zero(), r2_r3 = Pair::Zero();
+    double r4 = 0.0;
     double b = 0.0, slope = 0.0;
     for (const Pixel& p : px) {
-      if (!sample(p, &b, &slope)) return std::nullopt;
+      if (it == 0) {
+        b = p.b;
+        slope = p.slope;
+      } else if (!sample(p, &b, &slope)) {
+        return std::nullopt;
+      }
       const double r = g * b + o - (p.a + mean_a);
       const double j0 = -g * slope, j1 = -g * slope * p.dx, j2 = -g * slope * p.dy, j3 = b;
-      h00 += j0 * j0;
-      h10 += j1 * j0;
-      h11 += j1 * j1;
-      h20 += j2 * j0;
-      h21 += j2 * j1;
-      h22 += j2 * j2;
-      h30 += j3 * j0;
-      h31 += j3 * j1;
-      h32 += j3 * j2;
-      h33 += j3 * j3;
-      h40 += j0;
-      h41 += j1;
-      h42 += j2;
-      h43 += j3;
-      h44 += 1.0;
-      r0 -= j0 * r;
-      r1 -= j1 * r;
-      r2 -= j2 * r;
-      r3 -= j3 * r;
+      const Pair j01(j0, j1), j23(j2, j3), j13(j1, j3);
+      h00_h10 += j01 * j0;
+      h20_h30 += j23 * j0;
+      h21_h31 += j23 * j1;
+      h22_h32 += j23 * j2;
+      h11_h33 += j13 * j13;
+      h40_h41 += j01;
+      h42_h43 += j23;
+      r0_r1 -= j01 * r;
+      r2_r3 -= j23 * r;
       r4 -= r;
     }
     Matrix5d h_mat = Matrix5d::Zero();
-    h_mat(0, 0) = h00;
-    h_mat(1, 0) = h10;
-    h_mat(1, 1) = h11;
-    h_mat(2, 0) = h20;
-    h_mat(2, 1) = h21;
-    h_mat(2, 2) = h22;
-    h_mat(3, 0) = h30;
-    h_mat(3, 1) = h31;
-    h_mat(3, 2) = h32;
-    h_mat(3, 3) = h33;
-    h_mat(4, 0) = h40;
-    h_mat(4, 1) = h41;
-    h_mat(4, 2) = h42;
-    h_mat(4, 3) = h43;
-    h_mat(4, 4) = h44;
+    h_mat(0, 0) = h00_h10[0];
+    h_mat(1, 0) = h00_h10[1];
+    h_mat(1, 1) = h11_h33[0];
+    h_mat(2, 0) = h20_h30[0];
+    h_mat(2, 1) = h21_h31[0];
+    h_mat(2, 2) = h22_h32[0];
+    h_mat(3, 0) = h20_h30[1];
+    h_mat(3, 1) = h21_h31[1];
+    h_mat(3, 2) = h22_h32[1];
+    h_mat(3, 3) = h11_h33[1];
+    h_mat(4, 0) = h40_h41[0];
+    h_mat(4, 1) = h40_h41[1];
+    h_mat(4, 2) = h42_h43[0];
+    h_mat(4, 3) = h42_h43[1];
+    h_mat(4, 4) = n;
+    const double r0 = r0_r1[0], r1 = r0_r1[1], r2 = r2_r3[0], r3 = r2_r3[1];
     Vector5d rhs;
     rhs << r0, r1, r2, r3, r4;
     // A weak prior towards zero slopes keeps the normal equations regular
