@@ -98,6 +98,7 @@ MapPoint* Map::CreatePoint(const Eigen::Vector3d& p_in_world, const KeyFrame& re
   p->first_kf_id = reference_kf.id;
   MapPoint* raw = p.get();
   points_[raw->id] = std::move(p);
+  point_index_[raw->id] = raw;
   return raw;
 }
 
@@ -113,6 +114,7 @@ MapPoint* Map::InsertPoint(std::unique_ptr<MapPoint> p) {
   if (slot != nullptr && slot->bad) --num_bad_points_;
   if (raw->bad) ++num_bad_points_;
   slot = std::move(p);
+  point_index_[raw->id] = raw;
   return raw;
 }
 
@@ -125,12 +127,12 @@ const KeyFrame* Map::keyframe(int64_t id) const {
   return it == keyframes_.end() ? nullptr : it->second.get();
 }
 MapPoint* Map::point(int64_t id) {
-  auto it = points_.find(id);
-  return it == points_.end() ? nullptr : it->second.get();
+  auto it = point_index_.find(id);
+  return it == point_index_.end() ? nullptr : it->second;
 }
 const MapPoint* Map::point(int64_t id) const {
-  auto it = points_.find(id);
-  return it == points_.end() ? nullptr : it->second.get();
+  auto it = point_index_.find(id);
+  return it == point_index_.end() ? nullptr : it->second;
 }
 MapPoint* Map::GoodPoint(int64_t id) {
   if (id < 0) return nullptr;
@@ -221,6 +223,7 @@ void Map::ErasePoint(int64_t point_id) {
     KeyFrame* kf = keyframe(kf_id);
     if (kf != nullptr && kf->point_ids[idx] == point_id) kf->point_ids[idx] = -1;
   }
+  point_index_.erase(point_id);
   points_.erase(it);
 }
 
@@ -243,6 +246,7 @@ void Map::ReplacePoint(int64_t old_id, int64_t new_id) {
   new_p->found += old_p->found;
   old_p->observations.clear();
   if (old_p->bad) --num_bad_points_;
+  point_index_.erase(old_id);
   points_.erase(old_id);
   UpdatePointDescriptor(new_p);
 }

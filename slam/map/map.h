@@ -15,6 +15,7 @@
 #include <memory>
 #include <mutex>
 #include <opencv2/core.hpp>
+#include <unordered_map>
 #include <vector>
 
 #include "slam/features/feature_matcher.h"
@@ -186,6 +187,11 @@ class Map {
   mutable std::atomic<int> priority_waiters_{0};
   std::map<int64_t, std::unique_ptr<KeyFrame>> keyframes_;
   std::map<int64_t, std::unique_ptr<MapPoint>> points_;
+  // points_ by id in constant time: the trackers and the mapper look points
+  // up by id tens of thousands of times a frame, and a lookup in a tree of
+  // ~10⁴-10⁵ points is a chain of cache misses. points_ keeps the ordered
+  // iteration (saving, snapshots, the BA's order).
+  std::unordered_map<int64_t, MapPoint*> point_index_;
   int num_bad_points_ = 0;  // points_ held with bad set (NumGoodPoints)
   double disparity_offset_ = 0.0;
   int disparity_offset_updates_ = 0;

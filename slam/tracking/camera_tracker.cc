@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstring>
 #include <set>
+#include <unordered_set>
 
 #include "slam/features/feature_matcher.h"
 #include "slam/tracking/pnp.h"
@@ -573,7 +574,8 @@ bool CameraTracker::TrackLocalMap(map::Frame* frame, map::Map* map, bool just_re
     p->visible++;
   }
   std::vector<int64_t> local_points;
-  std::set<int64_t> seen;
+  std::unordered_set<int64_t> seen;  // a hash set: tens of thousands of inserts a frame
+  seen.reserve(4096);
   for (int64_t kf_id : local_kfs) {
     const map::KeyFrame* kf = map->keyframe(kf_id);
     for (int64_t pid : kf->point_ids) {

@@ -6,6 +6,7 @@
 #include <memory>
 #include <chrono>
 #include <thread>
+#include <vector>
 
 namespace twist::map {
 namespace {
@@ -86,6 +87,60 @@ TEST(Map, IdsComeFromTheMapAndCovisibilityCountsSharedPoints) {
   int counted = 0;
   for (const auto& [id, p] : map.points()) counted += !p->bad;
   EXPECT_EQ(counted, 19);
+}
+
+// Points are looked up by id through an index kept beside the ordered
+// container: it must follow every way a point enters or leaves the map.
+TEST(Map, PointLookupFollowsEveryChange) {
+  Map map(Camera(), features::ScalePyramid::Create(8, 1.2));
+  KeyFrame* a = map.CreateKeyFrame(MakeFrame(0, 10, 0, 0));
+  KeyFrame* b = map.CreateKeyFrame(MakeFrame(1, 10, 0, 1));
+  std::vector<MapPoint*> created;
+  for (int i = 0; i < 10; ++i) {
+    MapPoint* p = map.CreatePoint(Eigen::Vector3d(i, 0, 10), *a);
+    map.AddObservation(p, a, i);
+    map.AddObservation(p, b, i);
+    created.push_back(p);
+  }
+  auto consistent = [&map] {
+    for (const auto& [id, p] : map.points()) {
+      if (map.point(id) != p.get()) return false;
+    }
+    return true;
+  };
+  for (MapPoint* p : created) EXPECT_EQ(map.point(p->id), p);
+  EXPECT_EQ(map.point(10), nullptr);
+  EXPECT_EQ(map.point(-1), nullptr);
+  EXPECT_EQ(map.GoodPoint(-1), nullptr);
+
+  map.ErasePoint(3);
+  EXPECT_EQ(map.point(3), nullptr);
+  EXPECT_EQ(map.GoodPoint(3), nullptr);
+  map.ReplacePoint(4, 5);
+  EXPECT_EQ(map.point(4), nullptr);
+  EXPECT_EQ(map.point(5), created[5]);
+
+  // A state file's point takes a free id, then replaces itself.
+  auto loaded = std::make_unique<MapPoint>();
+  loaded->id = 3;
+  MapPoint* raw = map.InsertPoint(std::move(loaded));
+  EXPECT_EQ(map.point(3), raw);
+  auto again = std::make_unique<MapPoint>();
+  again->id = 3;
+  again->bad = true;
+  MapPoint* raw2 = map.InsertPoint(std::move(again));
+  EXPECT_EQ(map.point(3), raw2);
+  EXPECT_EQ(map.GoodPoint(3), nullptr);  // held bad
+  EXPECT_TRUE(consistent());
+
+  // Erasing a keyframe erases the points left with one observation.
+  map.EraseKeyFrame(b->id);
+  EXPECT_TRUE(consistent());
+  for (int64_t id = 0; id < 10; ++id) {
+    if (map.points().count(id) == 0) {
+      EXPECT_EQ(map.point(id), nullptr) << id;
+    }
+  }
 }
 
 TEST(Map, ReplaceMergesObservationsAndDescriptorIsTheMedoid) {
