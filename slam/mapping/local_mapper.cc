@@ -276,6 +276,11 @@ int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1,
     std::vector<char> taken2(n2, 0);
     std::vector<std::pair<int, int>> matches;
     features::OrientationFilter rot;
+    // The candidates near one epipolar line: a branch-free pass over all of
+    // them (vectorised), then the descriptors of those few, in order.
+    std::vector<uint8_t> near_line(n2);
+    std::vector<int> near;
+    near.reserve(static_cast<size_t>(n2));
     for (int i = 0; i < f1.size(); ++i) {
       if (kf1->point_ids[i] >= 0 || !f1.is_static[i]) continue;
       const cv::KeyPoint& k1 = f1.keypoints[i];
@@ -286,10 +291,16 @@ int LocalMapper::TriangulateWithNeighbours(map::KeyFrame* kf1,
       const float la = static_cast<float>(line.x() / std::sqrt(norm2));
       const float lb = static_cast<float>(line.y() / std::sqrt(norm2));
       const float lc = static_cast<float>(line.z() / std::sqrt(norm2));
-      int best = features::kThresholdLow + 1, best_c = -1;
       for (int c = 0; c < n2; ++c) {
         const float num = la * xs2[c] + lb * ys2[c] + lc;
-        if (num * num >= th2[c] || taken2[c]) continue;
+        near_line[c] = static_cast<uint8_t>((num * num < th2[c]) & (taken2[c] == 0));
+      }
+      near.clear();
+      for (int c = 0; c < n2; ++c) {
+        if (near_line[c]) near.push_back(c);
+      }
+      int best = features::kThresholdLow + 1, best_c = -1;
+      for (int c : near) {
         const int j = cand2[c];
         const int d = features::DescriptorDistance(f1.descriptor(i), f2.descriptor(j));
         if (d >= best) continue;
