@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cmath>
 #include <functional>
+#include <optional>
 #include <string>
 #include <thread>
 #include <unordered_map>
@@ -20,14 +21,14 @@ using geometry::Vector6d;
 
 namespace {
 
-// Frames in a row, up to the last one, in which the object coasted (a
-// refused step: no observation kept).
 // How far the object's origin moves in the world-frame step `twist`:
 // v + ω × t, t its position.
 double OriginStepLength(const TrackedObject& o, const Vector6d& twist) {
   return (twist.head<3>() + twist.tail<3>().cross(o.world_from_object.translation())).norm();
 }
 
+// Frames in a row, up to the last one, in which the object coasted (a
+// refused step: no observation kept).
 int CoastedFrames(const TrackedObject& o) {
   int coasted = 0;
   for (auto it = o.history.rbegin(); it != o.history.rend() && it->observations.empty(); ++it)
@@ -170,10 +171,6 @@ double Median(std::vector<double> v) {
   std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
   return v[v.size() / 2];
 }
-
-}  // namespace
-
-namespace {
 
 // fn(0) ... fn(n - 1) on up to `threads` threads (this one and threads - 1
 // started for the call), each index taken once, in no set order.
@@ -1556,12 +1553,16 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
       if (st.reacquiring) unmatched.push_back(st.det);
     }
   };
-  auto object_of = [&](const ObjectDetectionInput& det) {
+  // The step of the cluster's object not stepped yet (handled from now
+  // on); none when the cluster has no such object.
+  auto step_of = [&](const ObjectDetectionInput& det) -> std::optional<Step> {
     TrackedObject* o = nullptr;
     for (auto& [id, obj] : objects_) {
       if (obj.cluster_id == det.cluster_id && handled.count(id) == 0) o = &obj;
     }
-    return o;
+    if (o == nullptr) return std::nullopt;
+    handled.insert(o->id);
+    return Step{&det, o, !(o->frames_lost == 0 && has_prev_), false, {}};
   };
   // The steps touch their own object only (and the frame's caches, made
   // ready below), so they may run side by side, and the results are the
@@ -1576,25 +1577,22 @@ absl::StatusOr<std::vector<ObjectResult>> ObjectTracker::Process(const ObjectFra
   if (parallel && frame.flow.empty() && has_prev_) parallel = PrepareSparseFlow(ctx);
   if (!parallel) {
     for (const ObjectDetectionInput& det : frame.detections) {
-      TrackedObject* o = object_of(det);
-      if (o == nullptr) {
+      std::optional<Step> st = step_of(det);
+      if (!st) {
         unmatched.push_back(&det);
         continue;
       }
-      handled.insert(o->id);
-      Step st{&det, o, !(o->frames_lost == 0 && has_prev_), false, {}};
-      run_step(&st);
-      finish_step(st);
+      run_step(&*st);
+      finish_step(*st);
     }
   } else {
     std::vector<Step> steps;
     std::vector<int> step_of_detection;
     for (const ObjectDetectionInput& det : frame.detections) {
-      TrackedObject* o = object_of(det);
-      step_of_detection.push_back(o == nullptr ? -1 : static_cast<int>(steps.size()));
-      if (o == nullptr) continue;
-      handled.insert(o->id);
-      steps.push_back(Step{&det, o, !(o->frames_lost == 0 && has_prev_), false, {}});
+      std::optional<Step> st = step_of(det);
+      step_of_detection.push_back(st ? static_cast<int>(steps.size()) : -1);
+      if (!st) continue;
+      steps.push_back(*std::move(st));
       ctx.stereo_cache[det.cluster_id];  // each step's entry, made here
     }
     ParallelFor(steps.size(), options_.num_threads, [&](size_t i) { run_step(&steps[i]); });

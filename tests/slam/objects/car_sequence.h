@@ -54,6 +54,14 @@ class CarSequence {
   const Vector6d& step() const { return step_; }
   // The car's motion per frame in the world (zero: a parked car).
   void set_step(const Vector6d& step) { step_ = step; }
+  // The world step of the car, from its pose now, that moves it `forward_m`
+  // along its length and turns it by `turn_rad` about its vertical axis per
+  // frame (the joint's axes in the car's frame).
+  Vector6d CarStep(double forward_m, double turn_rad) const {
+    Vector6d in_car;
+    in_car << 0.0, forward_m, 0.0, 0.0, 0.0, turn_rad;
+    return world_from_object_.Adjoint() * in_car;
+  }
   // Turns the car about its vertical axis by `rad` before the first frame
   // (0: its length along the road, world z).
   void set_heading(double rad) {

@@ -1043,14 +1043,11 @@ TEST(ObjectTracker, ACarEnteringATurnIsFollowed) {
     ObjectTrackerOptions options;
     if (!manoeuvre) options.manoeuvre_angular_acceleration_sigma_radps2 = 0.0;
     ObjectTracker tracker(seq.camera(), options);
-    Vector6d straight, turning;  // per frame, in the car's frame (joint axes)
-    straight << 0.0, 0.8, 0.0, 0.0, 0.0, 0.0;
-    turning << 0.0, 0.8, 0.0, 0.0, 0.0, 0.07;
-    seq.set_step(seq.world_from_object().Adjoint() * straight);
+    seq.set_step(seq.CarStep(0.8, 0.0));
     const SE3d gt0 = seq.world_from_object();
     SE3d est0;
     for (int i = 0; i < 24; ++i) {
-      if (i == 12) seq.set_step(seq.world_from_object().Adjoint() * turning);
+      if (i == 12) seq.set_step(seq.CarStep(0.8, 0.07));
       const auto results = tracker.Process(seq.Next(9, true));
       ASSERT_TRUE(results.ok());
       ASSERT_GE(results->size(), 1u);
@@ -1092,14 +1089,11 @@ TEST(ObjectTracker, ATurnBeyondATyresGripCoasts) {
     ObjectTrackerOptions options;
     if (!bound) options.max_lateral_acceleration_mps2 = 0.0;
     ObjectTracker tracker(seq.camera(), options);
-    Vector6d straight, turning;  // per frame, in the car's frame (joint axes)
-    straight << 0.0, 1.5, 0.0, 0.0, 0.0, 0.0;
-    turning << 0.0, 1.5, 0.0, 0.0, 0.0, 0.07;
-    seq.set_step(seq.world_from_object().Adjoint() * straight);
+    seq.set_step(seq.CarStep(1.5, 0.0));
     int beyond = 0, manoeuvres = 0;
     SE3d before;
     for (int i = 0; i <= 12; ++i) {
-      if (i == 12) seq.set_step(seq.world_from_object().Adjoint() * turning);
+      if (i == 12) seq.set_step(seq.CarStep(1.5, 0.07));
       const auto results = tracker.Process(seq.Next(9, true));
       ASSERT_TRUE(results.ok());
       ASSERT_EQ(results->size(), 1u);
@@ -1140,9 +1134,7 @@ TEST(ObjectTracker, AYoungCarSeenFromBehindDoesNotSpin) {
       ObjectTrackerOptions options;
       if (!prior) options.young_turn_rate_sigma_radps = 0.0;
       ObjectTracker tracker(seq.camera(), options);
-      Vector6d straight;  // per frame, in the car's frame (joint axes)
-      straight << 0.0, 0.7, 0.0, 0.0, 0.0, 0.0;
-      seq.set_step(seq.world_from_object().Adjoint() * straight);
+      seq.set_step(seq.CarStep(0.7, 0.0));
       const SE3d gt0 = seq.world_from_object();
       SE3d est0;
       for (int i = 0; i < 6; ++i) {
@@ -1176,9 +1168,7 @@ TEST(ObjectTracker, AYoungCarSeenFromBehindDoesNotSpin) {
 CarSequence TurningCar(uint64_t seed, int num_points, double forward_m) {
   CarSequence seq(0.5, seed, 4.0, num_points, 14.0);
   seq.set_heading(-1.0);
-  Vector6d turning;  // per frame, in the car's frame (joint axes)
-  turning << 0.0, forward_m, 0.0, 0.0, 0.0, 0.07;
-  seq.set_step(seq.world_from_object().Adjoint() * turning);
+  seq.set_step(seq.CarStep(forward_m, 0.07));
   return seq;
 }
 
@@ -1266,9 +1256,7 @@ TEST(ObjectTracker, ACarPullingAwayFromAStopDoesNotSpin) {
       ObjectTrackerOptions options;
       if (!prior) options.starting_turn_prior_poses = 0;
       ObjectTracker tracker(seq.camera(), options);
-      Vector6d straight;  // per frame, in the car's frame (joint axes)
-      straight << 0.0, 0.7, 0.0, 0.0, 0.0, 0.0;
-      const Vector6d cruise = seq.world_from_object().Adjoint() * straight;
+      const Vector6d cruise = seq.CarStep(0.7, 0.0);
       seq.set_step(Vector6d::Zero());
       bool held = false;
       SE3d est_start, gt_start;
