@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cmath>
 #include <functional>
+#include <iterator>
 #include <optional>
 #include <string>
 #include <thread>
@@ -42,6 +43,19 @@ bool HeldWithin(const TrackedObject& o, int poses) {
   int k = 0;
   for (auto it = o.history.rbegin(); it != o.history.rend() && k < poses; ++it, ++k) {
     if (it->held) return true;
+  }
+  return false;
+}
+
+// Whether the object went unseen within its last `poses` poses: one of them
+// coasted (no observation kept, the object not held stationary), or a frame
+// is missing between two of them (it was lost and reacquired).
+bool UnseenWithin(const TrackedObject& o, int poses) {
+  int k = 0;
+  for (auto it = o.history.rbegin(); it != o.history.rend() && k < poses; ++it, ++k) {
+    if (it->observations.empty() && !it->held) return true;
+    const auto before = std::next(it);
+    if (before != o.history.rend() && it->frame_index - before->frame_index > 1) return true;
   }
   return false;
 }
@@ -265,10 +279,10 @@ absl::Status ObjectTrackerOptions::Validate() const {
         "restart_filter_after_refusals >= 0");
   }
   if (!(young_turn_rate_sigma_radps >= 0.0) || young_turn_prior_poses < 0 ||
-      starting_turn_prior_poses < 0) {
+      starting_turn_prior_poses < 0 || unseen_turn_prior_poses < 0) {
     return absl::InvalidArgumentError(
-        "object tracker needs young_turn_rate_sigma_radps >= 0, young_turn_prior_poses >= 0 and "
-        "starting_turn_prior_poses >= 0");
+        "object tracker needs young_turn_rate_sigma_radps >= 0, young_turn_prior_poses >= 0, "
+        "starting_turn_prior_poses >= 0 and unseen_turn_prior_poses >= 0");
   }
   if (!(young_turn_release_sigmas >= 0.0) || young_turn_release_min_inliers < 0 ||
       !(young_turn_release_max_curvature_per_m > 0.0)) {
@@ -1035,11 +1049,12 @@ bool ObjectTracker::Track(const FrameContext& ctx,
     add_obs(flow_idx[j], *q, u_right, level_scale);
   }
   const Matrix6d projector = o->joint.WorldProjector();
-  // The young object's turn prior, also for one pulling away from a stop:
-  // it is seen as poorly as a new one.
+  // The young object's turn prior, also for one pulling away from a stop
+  // and for one just seen again: it is seen as poorly as a new one.
   const bool young_by_age = static_cast<int>(o->history.size()) < options_.young_turn_prior_poses;
   const bool young =
-      young_by_age || (!o->stationary && HeldWithin(*o, options_.starting_turn_prior_poses));
+      young_by_age || (!o->stationary && HeldWithin(*o, options_.starting_turn_prior_poses)) ||
+      UnseenWithin(*o, options_.unseen_turn_prior_poses);
   const TwistPrior turn_prior =
       young ? TurnPrior(o->joint, ctx.dt, options_.young_turn_rate_sigma_radps)
             : TurnPrior(o->joint, ctx.dt);
@@ -1357,7 +1372,12 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
                           obs,
                           initial,
                           options_.estimator,
-                          TurnPrior(joint, std::max(1.0, steps) * ctx.dt));
+                          // Seen again, it has the young prior (unseen_turn_prior_poses).
+                          TurnPrior(joint,
+                                    std::max(1.0, steps) * ctx.dt,
+                                    options_.unseen_turn_prior_poses > 0
+                                        ? options_.young_turn_rate_sigma_radps
+                                        : options_.turn_rate_sigma_radps));
   // A residual scale no tracked step may have (max_step_sigma_px): the
   // matches do not agree on a motion.
   if (!est.ok() || !est->success || est->sigma_px > options_.max_step_sigma_px) return false;
