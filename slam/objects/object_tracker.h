@@ -522,10 +522,11 @@ struct ObjectTrackerOptions {
   int starting_turn_prior_poses = 15;
   // The young prior also holds for the reacquiring step and the next
   // unseen_turn_prior_poses poses of an object that went unseen (a coasted
-  // frame, or lost and reacquired): seen again, it is often partly occluded and its few
-  // points show its yaw as poorly as a new car's. A car crossing 46 m ahead
-  // (`intersection` 1), seen again after the car crossing in front of it,
-  // turned by 2° per frame on a straight road (docs/objects.md §64). 0: off.
+  // frame, or lost and reacquired): seen again, it is often partly
+  // occluded and its few points show its yaw as poorly as a new car's. A
+  // car crossing 46 m ahead (`intersection` 1), seen again after the car
+  // crossing in front of it, turned by 2° per frame on a straight road
+  // (docs/objects.md §64). 0: off.
   int unseen_turn_prior_poses = 3;
   double filter_gate_confidence = 0.999;
   double max_step_sigma_px = 4.0;
