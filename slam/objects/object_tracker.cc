@@ -37,27 +37,35 @@ int CoastedFrames(const TrackedObject& o) {
   return coasted;
 }
 
-// Whether the tracker held the object stationary in one of its last `poses`
-// poses (looks at those only: the history holds up to max_history).
-bool HeldWithin(const TrackedObject& o, int poses) {
+// Whether `pred(sample, before)` holds for one of the object's last `poses`
+// pose samples (looks at those only: the history holds up to max_history);
+// `before` is the sample recorded before it, or nullptr for the oldest.
+template <typename Pred>
+bool AnyOfLastPoses(const TrackedObject& o, int poses, Pred&& pred) {
   int k = 0;
   for (auto it = o.history.rbegin(); it != o.history.rend() && k < poses; ++it, ++k) {
-    if (it->held) return true;
+    const auto before = std::next(it);
+    if (pred(*it, before == o.history.rend() ? nullptr : &*before)) return true;
   }
   return false;
+}
+
+// Whether the tracker held the object stationary in one of its last `poses`
+// poses.
+bool HeldWithin(const TrackedObject& o, int poses) {
+  return AnyOfLastPoses(o, poses, [](const ObjectPoseSample& s, const ObjectPoseSample*) {
+    return s.held;
+  });
 }
 
 // Whether the object went unseen within its last `poses` poses: one of them
 // coasted (no observation kept, the object not held stationary), or a frame
 // is missing between two of them (it was lost and reacquired).
 bool UnseenWithin(const TrackedObject& o, int poses) {
-  int k = 0;
-  for (auto it = o.history.rbegin(); it != o.history.rend() && k < poses; ++it, ++k) {
-    if (it->observations.empty() && !it->held) return true;
-    const auto before = std::next(it);
-    if (before != o.history.rend() && it->frame_index - before->frame_index > 1) return true;
-  }
-  return false;
+  return AnyOfLastPoses(o, poses, [](const ObjectPoseSample& s, const ObjectPoseSample* before) {
+    return (s.observations.empty() && !s.held) ||
+           (before != nullptr && s.frame_index - before->frame_index > 1);
+  });
 }
 
 // Buckets keypoints on a coarse grid for radius look-ups.
