@@ -265,8 +265,10 @@ absl::Status ObjectTrackerOptions::Validate() const {
   if (!(max_track_depth_sigma_m >= 0.0)) {
     return absl::InvalidArgumentError("object tracker needs max_track_depth_sigma_m >= 0");
   }
-  if (!(stationary_max_leave_speed_mps >= 0.0)) {
-    return absl::InvalidArgumentError("object tracker needs stationary_max_leave_speed_mps >= 0");
+  if (!(stationary_max_leave_speed_mps >= 0.0) || !(stationary_max_still_sigma_px >= 0.0)) {
+    return absl::InvalidArgumentError(
+        "object tracker needs stationary_max_leave_speed_mps >= 0 and "
+        "stationary_max_still_sigma_px >= 0");
   }
   if (!(stationary_max_leave_curvature_per_m >= 0.0) || !(stationary_leave_turn_slack_rad >= 0.0)) {
     return absl::InvalidArgumentError(
@@ -1286,8 +1288,15 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       o->stationary = !starts;
       o->insignificant_steps = o->stationary ? o->insignificant_steps + 1 : 0;
     } else {
-      const bool still = !significant || speed < options_.stationary_enter_speed_mps;
-      o->insignificant_steps = still ? o->insignificant_steps + 1 : 0;
+      const bool slow = speed < options_.stationary_enter_speed_mps;
+      // An insignificant step that is not slow says nothing when its
+      // matches are poor: the count stands.
+      const bool uninformative = !significant && !slow &&
+                                 options_.stationary_max_still_sigma_px > 0.0 &&
+                                 est->sigma_px > options_.stationary_max_still_sigma_px;
+      if (!uninformative) {
+        o->insignificant_steps = !significant || slow ? o->insignificant_steps + 1 : 0;
+      }
       o->stationary = o->insignificant_steps >= options_.stationary_after_frames;
     }
     if (o->stationary) {

@@ -550,6 +550,18 @@ struct ObjectTrackerOptions {
   double stationary_confidence = 0.99;
   double stationary_enter_speed_mps = 0.8;
   double stationary_leave_speed_mps = 1.2;
+  // A step that the likelihood-ratio test finds insignificant but that is
+  // faster than stationary_enter_speed_mps counts as still only when its
+  // residual scale (MAD) is at most this: on a noisier step "insignificant"
+  // says that the matches show nothing, not that the object stands, and
+  // such a step leaves the count of still steps as it was. A car emerging
+  // at 7 m/s from behind a building with a pedestrian in front of it
+  // (`turning_traffic` seed 5) was measured at 0.9-1.2 m/s on steps of
+  // 1.9 and 2.8 px, held stationary, and its filter then refused its true
+  // speed until it had drifted 6 m behind (docs/objects.md §65). Slower
+  // steps are still by their speed whatever their scale. 0: off (every
+  // insignificant step is still).
+  double stationary_max_still_sigma_px = 1.5;
   // A stationary object's step faster than this is a failed measurement, not
   // a start (a car at 4 m/s² reaches 1.2 m/s, the leave speed, within
   // 0.3 s): it coasts like a step refused by the filter's gate. On the
