@@ -53,9 +53,8 @@ bool AnyOfLastPoses(const TrackedObject& o, int poses, Pred&& pred) {
 // Whether the tracker held the object stationary in one of its last `poses`
 // poses.
 bool HeldWithin(const TrackedObject& o, int poses) {
-  return AnyOfLastPoses(o, poses, [](const ObjectPoseSample& s, const ObjectPoseSample*) {
-    return s.held;
-  });
+  return AnyOfLastPoses(
+      o, poses, [](const ObjectPoseSample& s, const ObjectPoseSample*) { return s.held; });
 }
 
 // Whether the object went unseen within its last `poses` poses: one of them
@@ -1062,9 +1061,9 @@ bool ObjectTracker::Track(const FrameContext& ctx,
   // The young object's turn prior, also for one pulling away from a stop
   // and for one just seen again: it is seen as poorly as a new one.
   const bool young_by_age = static_cast<int>(o->history.size()) < options_.young_turn_prior_poses;
-  const bool young =
-      young_by_age || (!o->stationary && HeldWithin(*o, options_.starting_turn_prior_poses)) ||
-      UnseenWithin(*o, options_.unseen_turn_prior_poses);
+  const bool young = young_by_age ||
+                     (!o->stationary && HeldWithin(*o, options_.starting_turn_prior_poses)) ||
+                     UnseenWithin(*o, options_.unseen_turn_prior_poses);
   const TwistPrior turn_prior =
       young ? TurnPrior(o->joint, ctx.dt, options_.young_turn_rate_sigma_radps)
             : TurnPrior(o->joint, ctx.dt);
@@ -1288,14 +1287,16 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       o->stationary = !starts;
       o->insignificant_steps = o->stationary ? o->insignificant_steps + 1 : 0;
     } else {
+      // Still: slow, or insignificant on good matches. Moving: significant
+      // and not slow. Otherwise (insignificant on poor matches) the step
+      // shows nothing and the count stands.
       const bool slow = speed < options_.stationary_enter_speed_mps;
-      // An insignificant step that is not slow says nothing when its
-      // matches are poor: the count stands.
-      const bool uninformative = !significant && !slow &&
-                                 options_.stationary_max_still_sigma_px > 0.0 &&
-                                 est->sigma_px > options_.stationary_max_still_sigma_px;
-      if (!uninformative) {
-        o->insignificant_steps = !significant || slow ? o->insignificant_steps + 1 : 0;
+      const bool good_matches = options_.stationary_max_still_sigma_px <= 0.0 ||
+                                est->sigma_px <= options_.stationary_max_still_sigma_px;
+      if (slow || (!significant && good_matches)) {
+        ++o->insignificant_steps;
+      } else if (significant) {
+        o->insignificant_steps = 0;
       }
       o->stationary = o->insignificant_steps >= options_.stationary_after_frames;
     }
@@ -1381,20 +1382,19 @@ bool ObjectTracker::Reacquire(const FrameContext& ctx,
       static_cast<int>(obs.size()) < options_.min_points_to_track) {
     return false;
   }
-  absl::StatusOr<TwistEstimate> est =
-      EstimateObjectTwist(camera_,
-                          f.camera_from_world,
-                          o->world_from_object,
-                          projector,
-                          obs,
-                          initial,
-                          options_.estimator,
-                          // Seen again, it has the young prior (unseen_turn_prior_poses).
-                          TurnPrior(joint,
-                                    std::max(1.0, steps) * ctx.dt,
-                                    options_.unseen_turn_prior_poses > 0
-                                        ? options_.young_turn_rate_sigma_radps
-                                        : options_.turn_rate_sigma_radps));
+  absl::StatusOr<TwistEstimate> est = EstimateObjectTwist(
+      camera_,
+      f.camera_from_world,
+      o->world_from_object,
+      projector,
+      obs,
+      initial,
+      options_.estimator,
+      // Seen again, it has the young prior (unseen_turn_prior_poses).
+      TurnPrior(joint,
+                std::max(1.0, steps) * ctx.dt,
+                options_.unseen_turn_prior_poses > 0 ? options_.young_turn_rate_sigma_radps
+                                                     : options_.turn_rate_sigma_radps));
   // A residual scale no tracked step may have (max_step_sigma_px): the
   // matches do not agree on a motion.
   if (!est.ok() || !est->success || est->sigma_px > options_.max_step_sigma_px) return false;

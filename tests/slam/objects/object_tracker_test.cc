@@ -666,8 +666,12 @@ TEST(ObjectTracker, APoorlySeenMovingCarIsNotHeldStationary) {
       held += held_here;
       held_runs += held_here > 0 ? 1 : 0;
     }
-    std::printf("[poorly seen moving car, max still sigma %.1f px] held in %d of %d frames, %d of 5 runs\n",
-                max_still_sigma, held, tracked, held_runs);
+    std::printf(
+        "[poorly seen moving car, max still sigma %.1f px] held in %d of %d frames, %d of 5 runs\n",
+        max_still_sigma,
+        held,
+        tracked,
+        held_runs);
     if (max_still_sigma > 0.0) {
       EXPECT_EQ(held, 0);
     } else {
@@ -1373,11 +1377,12 @@ TEST(ObjectTracker, ACarSeenAgainAfterAnOcclusionDoesNotSpin) {
                                                  seq.world_from_object() * gt_start.Inverse()));
       }
     }
-    std::printf("[unseen turn prior %s] worst heading error over the 3 steps after, 7 seeds: "
-                "%.2f deg (%d of 21 steps tracked)\n",
-                prior ? "on" : "off",
-                worst[prior],
-                tracked_after[prior]);
+    std::printf(
+        "[unseen turn prior %s] worst heading error over the 3 steps after, 7 seeds: "
+        "%.2f deg (%d of 21 steps tracked)\n",
+        prior ? "on" : "off",
+        worst[prior],
+        tracked_after[prior]);
   }
   EXPECT_GE(tracked_after[1], 18);
   EXPECT_GE(tracked_after[0], 18);
