@@ -313,10 +313,12 @@ absl::Status ObjectTrackerOptions::Validate() const {
     return absl::InvalidArgumentError("object tracker needs max_lateral_acceleration_mps2 >= 0");
   }
   if (!(manoeuvre_angular_acceleration_sigma_radps2 >= 0.0) ||
-      !(manoeuvre_max_reversal_turn_radps >= 0.0)) {
+      !(manoeuvre_max_reversal_turn_radps >= 0.0) || !(manoeuvre_lever_arm_m >= 0.0) ||
+      !(manoeuvre_lever_arm_min_turn_radps >= 0.0)) {
     return absl::InvalidArgumentError(
-        "object tracker needs manoeuvre_angular_acceleration_sigma_radps2 >= 0 and "
-        "manoeuvre_max_reversal_turn_radps >= 0");
+        "object tracker needs manoeuvre_angular_acceleration_sigma_radps2, "
+        "manoeuvre_max_reversal_turn_radps, manoeuvre_lever_arm_m and "
+        "manoeuvre_lever_arm_min_turn_radps >= 0");
   }
   if (std::isnan(turn_rate_sigma_radps)) {
     return absl::InvalidArgumentError("object tracker turn_rate_sigma_radps must be a number");
@@ -815,6 +817,42 @@ Matrix6d ObjectTracker::ProcessNoise(const TrackedObject& o,
   return projector * to_world * q * to_world.transpose() * projector.transpose();
 }
 
+Matrix6d ObjectTracker::ManoeuvreNoise(const TrackedObject& o,
+                                       const Vector6d& predicted,
+                                       double dt,
+                                       bool lever_arm) const {
+  const Matrix6d q = ProcessNoise(o, dt, 0.0, options_.manoeuvre_angular_acceleration_sigma_radps2);
+  if (!lever_arm || !(options_.manoeuvre_lever_arm_m > 0.0) ||
+      o.joint.type() != joints::JointType::kPlanar) {
+    return q;
+  }
+  // Sideways: across the predicted velocity of the origin, in the plane (a
+  // change of the world twist's linear part moves the origin by as much).
+  const Eigen::Vector3d axis = o.joint.world_from_joint().rotation().col(2);
+  const Eigen::Vector3d c = o.world_from_object.translation();
+  const Eigen::Vector3d side = axis.cross(predicted.head<3>() + predicted.tail<3>().cross(c));
+  if (!(side.norm() > 1e-6)) return q;
+  const Eigen::Vector3d l = side.normalized();
+  // The rate's change over the step times the arm.
+  const double sigma = options_.manoeuvre_angular_acceleration_sigma_radps2 * dt * dt *
+                       options_.manoeuvre_lever_arm_m;
+  Matrix6d lateral = Matrix6d::Zero();
+  lateral.topLeftCorner<3, 3>() = sigma * sigma * l * l.transpose();
+  const Matrix6d projector = o.joint.WorldProjector();
+  return q + projector * lateral * projector.transpose();
+}
+
+bool ObjectTracker::EasesTheTurn(const TrackedObject& o,
+                                 const Vector6d& predicted,
+                                 const Vector6d& measured,
+                                 double dt) const {
+  if (o.joint.type() != joints::JointType::kPlanar) return false;
+  const Eigen::Vector3d axis = o.joint.world_from_joint().rotation().col(2);
+  const double turn_predicted = std::abs(axis.dot(predicted.tail<3>()));
+  return turn_predicted > options_.manoeuvre_lever_arm_min_turn_radps * dt &&
+         std::abs(axis.dot(measured.tail<3>())) < turn_predicted;
+}
+
 Matrix6d ObjectTracker::PredictedCovariance(const FrameContext& ctx, const TrackedObject& o) const {
   const double r = o.step_seconds > 0.0 ? ctx.dt / o.step_seconds : 1.0;
   const Matrix6d projector = o.joint.WorldProjector();
@@ -1240,7 +1278,10 @@ bool ObjectTracker::Track(const FrameContext& ctx,
       bool passed = false;
       if (manoeuvre > 0.0 && o->twist_covariance_valid &&
           !ReversesTurn(*o, initial, measured, ctx.dt)) {
-        predicted_covariance += ProcessNoise(*o, ctx.dt, 0.0, manoeuvre);
+        // (A step under the young car's zero-turn prior reads less turn
+        // than the car makes: it shows no end of a turn.)
+        predicted_covariance += ManoeuvreNoise(
+            *o, initial, ctx.dt, !young && EasesTheTurn(*o, initial, measured, ctx.dt));
         passed = FilterStep(*o, o->joint, initial, predicted_covariance, &*est);
         if (passed) ++report->stats.manoeuvres;
       }
