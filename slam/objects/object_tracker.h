@@ -455,20 +455,19 @@ struct ObjectTrackerOptions {
   // manoeuvre and is fused with that covariance when it passes. A step that
   // shifts the car sideways or along its way still coasts. 0: off.
   double manoeuvre_angular_acceleration_sigma_radps2 = 4.0;
-  // A car's rate of turn changes about its rear axle, and the tracker's
-  // origin (its first points' centre) lies ahead of or behind the axle: at
-  // the origin the end of a turn is also a sideways change of velocity,
-  // rate change x offset (0.07 rad x 2 m per frame), which the noise above,
-  // about the origin, does not hold. A car of `turning_traffic` seed 4
-  // turning at 4.5° per frame had its straight steps after the turn refused
-  // (χ² 16.7 against 16.3) and coasted on with the turn until it was lost
-  // (docs/objects.md §66). A step that eases the turn (turning less than the
-  // prediction, which turns faster than manoeuvre_lever_arm_min_turn_radps)
-  // is tested with sideways noise of this arm added to the manoeuvre's. A
-  // step that tightens or starts a turn gets none (on the young, poorly
-  // seen car of `turning_traffic` seed 5 that let wrong steps through), nor
-  // one under the young car's zero-turn prior, which reads less turn than
-  // the car makes. 0: off.
+  // A car's rate of turn changes about its rear axle, and the tracker's origin
+  // (its first points' centre, on the road) lies ahead of or behind the axle: at
+  // the origin the end of a turn is also a sideways change of velocity, rate
+  // change x offset (0.07 rad x 2 m per frame), which the noise above, about the
+  // origin, does not hold. A car of `turning_traffic` seed 4 turning at 4.5° per
+  // frame had its straight steps after the turn refused (χ² 16.7 against 16.3)
+  // and coasted on with the turn until it was lost (docs/objects.md §66). A step
+  // that eases the turn (turning less than the prediction, which turns faster
+  // than manoeuvre_lever_arm_min_turn_radps) is tested with sideways noise of
+  // this arm added to the manoeuvre's. A step that tightens or starts a turn gets
+  // none (on the young, poorly seen car of `turning_traffic` seed 5 that let
+  // wrong steps through), nor one under the young car's zero-turn prior, which
+  // reads less turn than the car makes. 0: off.
   double manoeuvre_lever_arm_m = 2.0;
   double manoeuvre_lever_arm_min_turn_radps = 0.175;
   // A step that reverses the turn, turning one way at more than this rate

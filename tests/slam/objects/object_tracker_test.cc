@@ -1125,14 +1125,15 @@ TEST(ObjectTracker, ACarEnteringATurnIsFollowed) {
   EXPECT_TRUE(lost[0] || worst[0] > 3.0);
 }
 
-// A car that ends its turn: it turns at 4° per frame about its rear axle,
-// 2.5 m behind the tracker's origin, then drives straight on. At the origin
-// the turn's end is also a sideways change of velocity (0.07 rad × 2.5 m
-// per frame), which the manoeuvre's noise about the origin alone does not
-// hold: its first straight steps failed the gate and coasted on with the
-// turn, as a car of `turning_traffic` seed 4 did (docs/objects.md §66).
-// With the lever arm (manoeuvre_lever_arm_m) the steps that ease the turn
-// pass as a manoeuvre and the car is followed into the straight.
+// A car that ends its turn: it turns at 4° per frame about its rear axle, 2.5 m
+// behind its points' centre (where the tracker puts its origin), then drives
+// straight on. At the origin the turn's end is also a sideways change of
+// velocity (0.07 rad × 2.5 m per frame), which the manoeuvre's noise about the
+// origin alone does not hold: its first straight steps failed the gate and
+// coasted on with the turn, as a car of `turning_traffic` seed 4 did
+// (docs/objects.md §66). With the lever arm (manoeuvre_lever_arm_m) the steps
+// that ease the turn pass as a manoeuvre and the car is followed into the
+// straight.
 TEST(ObjectTracker, ACarEndingATurnIsFollowed) {
   constexpr double kArmM = 2.5;
   constexpr double kTurnRad = 0.07;
