@@ -25,6 +25,15 @@ ObjectTrackerOptions OptionsForACarTurningFromItsFirstFrame() {
   return options;
 }
 
+// Rotation error (deg) of an estimated step (est_prev -> est) against the
+// true one (gt_prev -> gt), both in the world frame.
+double StepRotationErrorDeg(const SE3d& est_prev,
+                            const SE3d& est,
+                            const SE3d& gt_prev,
+                            const SE3d& gt) {
+  return RotationErrorDeg(est * est_prev.Inverse(), gt * gt_prev.Inverse());
+}
+
 // Speed error of a tracked car at frame i (true speed of its origin).
 double SpeedError(const CarSequence& seq, const ObjectResult& r) {
   const double true_speed =
@@ -1160,9 +1169,10 @@ TEST(ObjectTracker, ACarEndingATurnIsFollowed) {
         if (i >= 12) {
           rejected[arm] += tracker.last_stats().rejected;
           if (r.state == ObjectState::kTracked) {
-            worst[arm] = std::max(worst[arm],
-                                  RotationErrorDeg(r.world_from_object * est_prev.Inverse(),
-                                                   seq.world_from_object() * gt_prev.Inverse()));
+            worst[arm] =
+                std::max(worst[arm],
+                         StepRotationErrorDeg(
+                             est_prev, r.world_from_object, gt_prev, seq.world_from_object()));
           }
         }
         est_prev = r.world_from_object;
@@ -1298,9 +1308,10 @@ TEST(ObjectTracker, ACarFirstSeenInATurnIsFollowedFromItsFirstStep) {
         const ObjectResult& r = (*results)[0];
         if (i > 0) {
           ASSERT_EQ(r.state, ObjectState::kTracked);
-          worst[release] = std::max(worst[release],
-                                    RotationErrorDeg(r.world_from_object * est_prev.Inverse(),
-                                                     seq.world_from_object() * gt_prev.Inverse()));
+          worst[release] =
+              std::max(worst[release],
+                       StepRotationErrorDeg(
+                           est_prev, r.world_from_object, gt_prev, seq.world_from_object()));
         }
         est_prev = r.world_from_object;
         gt_prev = seq.world_from_object();
