@@ -116,16 +116,15 @@ enum class BaLinearSolver { kSparseSchur, kDenseSchur };
 struct DynamicBaOptions {
   int max_iterations = 10;
   double huber_delta = 2.447;  // on residuals in σ units (√χ²₂(0.95))
-  // > 0: the objects' reprojection terms take Tukey's biweight at this many
-  // σ (their MAD σ, see mad_sigma_for_dynamic), which gives no weight at all
-  // to a match more than c σ off (the patch matches of a turning car have a
-  // one-sided tail that Huber's linear tail still follows, docs/objects.md
-  // section 42). 0 (default): Huber at huber_delta, as the static terms.
-  // Measured in section 51: at 7 the 24 object runs' RPE_t and RPE_R fall
-  // (22 of 24 runs) with ATE 0.092 -> 0.091 m, but ATE moves either way with
-  // c (4.685: 0.094, 15: 0.096) through single cars, so it is not the
-  // default yet.
-  double dynamic_tukey_c = 0.0;
+  // > 0 (the default, 7): the objects' reprojection terms take Tukey's
+  // biweight at this many σ (their MAD σ, see mad_sigma_for_dynamic), which
+  // gives no weight at all to a match more than c σ off (the patch matches
+  // of a turning car have a one-sided tail that Huber's linear tail still
+  // follows, docs/objects.md section 42). 0: Huber at huber_delta, as the
+  // static terms. On the 24 rendered object runs, 7 against Huber: the
+  // moving cars' RPE_R 0.2020 -> 0.1985 deg/m, ATE 0.0902 -> 0.0877 m
+  // (docs/objects.md section 67).
+  double dynamic_tukey_c = 7.0;
   // W^{1/2}: per-component weights of the constant-velocity term, (v, ω) in
   // 1/m and 1/rad per frame step: a change of velocity of 2.5 cm and of
   // 0.29° per frame step costs one σ. Half these weights let the objects'

@@ -258,8 +258,8 @@ TEST(DynamicBa, LowersErrorOnAPerturbedWindow) {
 
 // A fifth of the car's matches lie 10 px ahead of their point (a patch
 // match that runs ahead of a turning car, docs/objects.md section 42, a
-// one-sided tail). Huber's linear tail (the default) still follows them;
-// Tukey's biweight (DynamicBaOptions::dynamic_tukey_c at 7) gives them no
+// one-sided tail). Huber's linear tail still follows them; Tukey's
+// biweight (DynamicBaOptions::dynamic_tukey_c at 7, the default) gives them no
 // weight: its solution is that of the window without them (but for the MAD
 // σ, which they could move).
 TEST(DynamicBa, TukeyLeavesAOneSidedTailOfMatchesOut) {
@@ -300,7 +300,7 @@ TEST(DynamicBa, TukeyLeavesAOneSidedTailOfMatchesOut) {
     return m / n;
   };
   const double huber = pull(0.0);
-  EXPECT_EQ(DynamicBaOptions().dynamic_tukey_c, 0.0);  // Huber by default
+  EXPECT_EQ(DynamicBaOptions().dynamic_tukey_c, 7.0);  // Tukey by default
   const double tukey = pull(7.0);
   std::printf(
       "[dynamic BA, 20 %% of the car's matches 10 px off] they move the car %.4f m "

@@ -494,10 +494,19 @@ TEST(ObjectBa, ASlidingWindowKeepsTheVelocityAtItsGauge) {
 // hold_points_seen_before_window; solved again from the window alone they
 // follow its sliding gauge, and the car's motion drifts further from the
 // truth.
+//
+// The BA runs with Huber on the objects' terms, as when the prior was
+// introduced. With Tukey's biweight (the default) this drift is decided by
+// single runaway tracker steps at the points' turnover (seed 1: 0.03 ->
+// 0.83 m in free and prior alike, docs/objects.md section 67), not by the
+// prior; on the 24 rendered object runs the prior still lowers the cars'
+// ATE under Tukey (0.0960 -> 0.0877 m).
 TEST(ObjectBa, ASlidingWindowKeepsWhatItsInheritedPointsWereSeenAs) {
   const int kFrames = 30, kWindow = 10, kShown = 30;
   enum Variant { kFree, kPrior, kHeld };
   std::map<Variant, double> error_of;
+  DynamicBaOptions huber;
+  huber.dynamic_tukey_c = 0.0;
   for (Variant variant : {kFree, kPrior, kHeld}) {
     double sum_error = 0.0;
     const int kSeeds = 12;
@@ -550,7 +559,7 @@ TEST(ObjectBa, ASlidingWindowKeepsWhatItsInheritedPointsWereSeenAs) {
         if (i >= 2 * kWindow) {
           EXPECT_GT(inherited, 0) << "frame " << i;
         }
-        SolveAndApply(&problem, links, options, &tracker);
+        SolveAndApply(&problem, links, options, &tracker, huber);
       }
       const TrackedObject& o = tracker.objects().begin()->second;
       ASSERT_EQ(o.history.back().frame_index, kFrames - 1);
