@@ -59,6 +59,14 @@ geometry::SE3d AlignRigid(const std::vector<Eigen::Vector3d>& est,
   return geometry::SE3d(r, mu_g - r * mu_e);
 }
 
+VisibleMisses& VisibleMisses::operator+=(const VisibleMisses& o) {
+  before_first += o.before_first;
+  other_fragment += o.other_fragment;
+  gap += o.gap;
+  after_last += o.after_last;
+  return *this;
+}
+
 absl::StatusOr<CameraMetrics> EvaluateCamera(const std::vector<geometry::SE3d>& gt,
                                              const std::vector<geometry::SE3d>& est) {
   if (gt.empty()) return absl::InvalidArgumentError("camera evaluation: no ground-truth poses");
@@ -263,13 +271,33 @@ absl::StatusOr<ObjectEvaluation> EvaluateObjects(const std::vector<ObjectGtRow>&
     if (pixel_counts != nullptr) {
       m.visible_gt_frames = 0;
       m.visible_tracked_frames = 0;
+      // The frames of the object's other tracks, and the span of all of them.
+      std::set<int64_t> elsewhere;
+      int64_t first_any = std::numeric_limits<int64_t>::max(), last_any = -1;
+      for (int64_t est_id : cands) {
+        for (const auto& [frame, row] : est_tracks[est_id]) {
+          if (est_id != m.est_track_id) elsewhere.insert(frame);
+          first_any = std::min(first_any, frame);
+          last_any = std::max(last_any, frame);
+        }
+      }
       const int64_t pan_id = static_cast<int64_t>(m.class_id) * 1000 + gt_id;
       for (const auto& [frame, row] : gt_frames) {
         auto it = pixel_counts->find({frame, pan_id});
         const int64_t px = it == pixel_counts->end() ? 0 : it->second;
         if (px < options.min_mask_pixels) continue;
         ++m.visible_gt_frames;
-        if (tracked.count(frame)) ++m.visible_tracked_frames;
+        if (tracked.count(frame)) {
+          ++m.visible_tracked_frames;
+        } else if (elsewhere.count(frame)) {
+          ++m.visible_misses.other_fragment;
+        } else if (frame < first_any) {
+          ++m.visible_misses.before_first;
+        } else if (frame > last_any) {
+          ++m.visible_misses.after_last;
+        } else {
+          ++m.visible_misses.gap;
+        }
       }
       m.visible_coverage = SafeDiv(static_cast<double>(m.visible_tracked_frames),
                                    static_cast<double>(m.visible_gt_frames));
@@ -353,6 +381,7 @@ absl::StatusOr<ObjectEvaluation> EvaluateObjects(const std::vector<ObjectGtRow>&
         has_vis = true;
         vis_gt += m.visible_gt_frames;
         vis_tracked += m.visible_tracked_frames;
+        a.visible_misses += m.visible_misses;
       }
     }
     a.coverage = SafeDiv(static_cast<double>(a.tracked_frames), static_cast<double>(a.gt_frames));
@@ -500,6 +529,15 @@ void WriteCameraJson(const CameraMetrics& m, JsonWriter* w) {
 }
 
 namespace {
+void WriteVisibleMissesJson(const VisibleMisses& v, JsonWriter* w) {
+  w->BeginObject();
+  w->Key("before_first").Int(v.before_first);
+  w->Key("other_fragment").Int(v.other_fragment);
+  w->Key("gap").Int(v.gap);
+  w->Key("after_last").Int(v.after_last);
+  w->EndObject();
+}
+
 void WriteAggregateJson(const ObjectAggregate& a, JsonWriter* w) {
   w->BeginObject();
   w->Key("num_objects").Int(a.num_objects);
@@ -508,6 +546,10 @@ void WriteAggregateJson(const ObjectAggregate& a, JsonWriter* w) {
   w->Key("tracked_frames").Int(a.tracked_frames);
   w->Key("coverage").Number(a.coverage);
   w->Key("visible_coverage").Number(a.visible_coverage);
+  if (!std::isnan(a.visible_coverage)) {
+    w->Key("visible_missed");
+    WriteVisibleMissesJson(a.visible_misses, w);
+  }
   w->Key("ate_m").Number(a.ate);
   w->Key("rpe_t_m_per_m").Number(a.rpe_t_per_m);
   w->Key("rpe_r_deg_per_m").Number(a.rpe_r_deg_per_m);
@@ -557,6 +599,8 @@ void WriteObjectsJson(const ObjectEvaluation& e, JsonWriter* w) {
     if (m.visible_gt_frames >= 0) {
       w->Key("visible_gt_frames").Int(m.visible_gt_frames);
       w->Key("visible_tracked_frames").Int(m.visible_tracked_frames);
+      w->Key("visible_missed");
+      WriteVisibleMissesJson(m.visible_misses, w);
     }
     w->Key("visible_coverage").Number(m.visible_coverage);
     w->Key("ate_m").Number(m.ate);

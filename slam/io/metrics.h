@@ -83,6 +83,19 @@ struct ObjectEvalOptions {
 // (frame, panoptic id = class*1000 + instance) -> pixel count.
 using MaskPixelCounts = std::map<std::pair<int64_t, int64_t>, int64_t>;
 
+// Where the frames an object shows itself in (visible coverage) but its
+// evaluated track misses lie: before the first frame of every track
+// associated with it (not created yet), covered by another of its tracks (a
+// fragment), between its tracks' first and last frames with no track (lost
+// for a while), or after their last frame.
+struct VisibleMisses {
+  int64_t before_first = 0;
+  int64_t other_fragment = 0;
+  int64_t gap = 0;
+  int64_t after_last = 0;
+  VisibleMisses& operator+=(const VisibleMisses& o);
+};
+
 struct ObjectMetrics {
   int64_t gt_track_id = 0;
   int class_id = 0;
@@ -97,6 +110,8 @@ struct ObjectMetrics {
   int64_t visible_gt_frames = -1;  // -1: no pixel counts
   int64_t visible_tracked_frames = -1;
   double visible_coverage = NAN;
+  // With pixel counts.
+  VisibleMisses visible_misses;
   double ate = NAN;       // m
   double distance_m = 0;  // GT distance over the evaluated pairs
   int64_t num_pairs = 0;
@@ -121,6 +136,8 @@ struct ObjectAggregate {
   int64_t tracked_frames = 0;
   double coverage = NAN;  // tracked_frames / gt_frames
   double visible_coverage = NAN;
+  // Summed over the objects.
+  VisibleMisses visible_misses;
   double ate = NAN;          // pooled RMSE over all tracked frames
   double rpe_t_per_m = NAN;  // Σ errors / Σ distance
   double rpe_r_deg_per_m = NAN;

@@ -328,6 +328,58 @@ TEST(ObjectMetrics, CoverageFragmentsStaticSplitAndVisibility) {
   EXPECT_THAT(w.str(), ::testing::HasSubstr("\"rpe_t_m_per_m\": null"));
 }
 
+// Each visible frame a car's evaluated track misses is put where it lies:
+// before all its tracks, in another of its tracks, between them, after them.
+TEST(ObjectMetrics, VisibleMissesSayWhereTheCoverageGoes) {
+  const int n = 30;
+  const std::vector<ObjectGtRow> gt = MovingGt(1, n, 10.0, Eigen::Vector3d(0, 1, 12));
+  std::vector<ObjectTrackRow> est;
+  auto add = [&](int64_t track, int first, int last) {
+    for (int i = first; i <= last; ++i) {
+      ObjectTrackRow r;
+      r.frame = i;
+      r.track_id = track;
+      r.class_id = 26;
+      r.world_from_object = gt[static_cast<size_t>(i)].world_from_object;
+      r.instance_id = 1;
+      est.push_back(r);
+    }
+  };
+  add(7, 4, 5);    // a fragment: frames 4-5
+  add(8, 8, 21);   // the evaluated track: frames 8-21 (gap 6-7)
+  add(9, 24, 25);  // a fragment after a gap of 22-23
+  MaskPixelCounts px;
+  for (int i = 0; i < n; ++i) px[{i, 26 * 1000 + 1}] = i == 1 || i == 15 ? 50 : 3000;
+  auto e = EvaluateObjects(gt, est, Stamps(n), ObjectEvalOptions(), &px);
+  ASSERT_TRUE(e.ok()) << e.status();
+  ASSERT_EQ(e->objects.size(), 1u);
+  const ObjectMetrics& m = e->objects[0];
+  EXPECT_EQ(m.est_track_id, 8);
+  EXPECT_EQ(m.num_est_tracks, 3);
+  // Visible: all frames but 1 and 15 (28); tracked 8-21 but 15 (13).
+  EXPECT_EQ(m.visible_gt_frames, 28);
+  EXPECT_EQ(m.visible_tracked_frames, 13);
+  EXPECT_EQ(m.visible_misses.before_first, 3);    // 0, 2, 3
+  EXPECT_EQ(m.visible_misses.other_fragment, 4);  // 4, 5, 24, 25
+  EXPECT_EQ(m.visible_misses.gap, 4);             // 6, 7, 22, 23
+  EXPECT_EQ(m.visible_misses.after_last, 4);      // 26-29
+  EXPECT_EQ(m.visible_gt_frames - m.visible_tracked_frames,
+            m.visible_misses.before_first + m.visible_misses.other_fragment + m.visible_misses.gap +
+                m.visible_misses.after_last);
+  EXPECT_EQ(e->moving.visible_misses.other_fragment, 4);
+  EXPECT_EQ(e->by_class.at(0).aggregate.visible_misses.after_last, 4);
+  JsonWriter w;
+  WriteObjectsJson(*e, &w);
+  ASSERT_TRUE(w.complete());
+  EXPECT_THAT(w.str(), ::testing::HasSubstr("\"visible_missed\""));
+  EXPECT_THAT(w.str(), ::testing::HasSubstr("\"before_first\": 3"));
+
+  // A car never tracked misses all its visible frames before any track.
+  auto none = EvaluateObjects(gt, {}, Stamps(n), ObjectEvalOptions(), &px);
+  ASSERT_TRUE(none.ok()) << none.status();
+  EXPECT_EQ(none->objects[0].visible_misses.before_first, 28);
+}
+
 TEST(ObjectMetrics, PerClassAggregatesSeparateCarsFromPedestrians) {
   // A moving car tracked exactly, a moving pedestrian (class 24) whose estimate
   // is 0.5 m/s too fast, and a parked car tracked exactly: "moving" pools the
