@@ -11,20 +11,27 @@
 # measured.
 #
 #   bench/objects/scenario_sweep.sh [--bin build/client/twistslam] [--work /tmp/sweep]
-#       [--scenarios "driving intersection stationary_then_accelerating turning_traffic"]
+#       [--scenarios "driving follow_braking intersection stationary_then_accelerating turning_traffic"]
 #       [--seeds "1 2 3 4 5 6"] [--frames 100] [--jobs 2] [--config FILE] [--label NAME]
+#       [--realtime]
+#
+# The default scenarios are every generator scenario with moving cars
+# (docs/sim.md), as issue #5 asks. --realtime sends the frames at 10 Hz, as a
+# live camera would (use --jobs 1 then, and a --config with
+# `slam: {mapping_mode: background}` for the service's mode).
 #
 # Runs with the same label reuse their outputs (delete WORK/runs/LABEL to run again).
 set -euo pipefail
 
 bin=build/client/twistslam
 work=/tmp/sweep
-scenarios="driving intersection stationary_then_accelerating turning_traffic"
+scenarios="driving follow_braking intersection stationary_then_accelerating turning_traffic"
 seeds="1 2 3 4 5 6"
 frames=100
 jobs=2
 config=""
 label=default
+realtime=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --bin) bin=$2; shift 2 ;;
@@ -35,7 +42,8 @@ while [ $# -gt 0 ]; do
     --jobs) jobs=$2; shift 2 ;;
     --config) config=$2; shift 2 ;;
     --label) label=$2; shift 2 ;;
-    -h|--help) sed -n 2,17p "$0"; exit 0 ;;
+    --realtime) realtime=--realtime; shift ;;
+    -h|--help) sed -n 2,23p "$0"; exit 0 ;;
     *) echo "scenario_sweep: unknown argument $1" >&2; exit 2 ;;
   esac
 done
@@ -57,6 +65,7 @@ one_run() {
     rm -rf "$out"
     local cfg=()
     [ -z "$config" ] || cfg=(--config "$config")
+    [ -z "$realtime" ] || cfg+=("$realtime")
     "$bin" run --embedded --dataset "$data" --format kitti-tracking --seq 0000 --out "$out" \
       "${cfg[@]}" >"$out.log" 2>&1 || { echo "run failed: $scenario $seed (see $out.log)" >&2; return 1; }
     "$bin" eval --dataset "$data" --format kitti-tracking --seq 0000 --est "$out" \
@@ -66,7 +75,7 @@ one_run() {
   fi
 }
 export -f one_run
-export bin work runs frames config
+export bin work runs frames config realtime
 
 for scenario in $scenarios; do
   for seed in $seeds; do echo "$scenario $seed"; done
