@@ -91,6 +91,10 @@ def cars(doc, moving):
             return c["aggregate"]
     return None
 
+def moving_cars(doc):
+    return [o for o in ((doc.get("objects") or {}).get("per_object") or [])
+            if o["class_id"] == 26 and o["moving"]]
+
 keys = ["ate_m", "rpe_t_m_per_m", "rpe_r_deg_per_m", "speed_error_kmh", "visible_coverage"]
 rows, sums, missed, visible = [], {}, {}, [0]
 def add(name, v):
@@ -109,8 +113,7 @@ for sc in scenarios:
             print(f"{sc}_{sd}: missing outputs"); continue
         m, r, p = cars(on, True), cars(ref, True), cars(on, False)
         cam = (on.get("camera") or {}).get("rpe_t_m_per_frame")
-        frag = sum(max(0, o["num_est_tracks"] - 1) for o in on["objects"]["per_object"]
-                   if o["class_id"] == 26 and o["moving"])
+        frag = sum(max(0, o["num_est_tracks"] - 1) for o in moving_cars(on))
         row = {"run": f"{sc}_{sd}", "online": m, "refined": r, "parked": p, "camera_rpe_t": cam,
                "fragments": frag}
         rows.append(row)
@@ -128,8 +131,7 @@ for sc in scenarios:
         add("fragments", frag)
         for k, v in ((m or {}).get("visible_missed") or {}).items():
             missed[k] = missed.get(k, 0) + v
-        visible[0] += sum(o.get("visible_gt_frames", 0) for o in on["objects"]["per_object"]
-                          if o["class_id"] == 26 and o["moving"])
+        visible[0] += sum(o.get("visible_gt_frames", 0) for o in moving_cars(on))
 mean = {k: sum(v) / len(v) for k, v in sums.items()}
 g = lambda k: mean.get(k, float("nan"))
 print(f"mean over {len(rows)} runs: cars ATE {g('online.ate_m'):.4f} ({g('refined.ate_m'):.4f}) m,"
