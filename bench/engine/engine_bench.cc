@@ -88,7 +88,7 @@ struct RunResult {
   int lost = 0;
   int keyframes = 0;
   int map_points = 0;
-  double rpe_t = 0, rpe_r = 0, ate = 0, path = 0;
+  double rpe_t = 0, rpe_r = 0, ate = 0, path = 0, ate_sim3 = 0;
   double refined_rpe_t = 0, refined_rpe_r = 0, refined_ate = 0;
   int late_frames = 0;  // --realtime: frames the engine took after their due time
   long rss_before_kb = 0, rss_after_kb = 0;
@@ -159,6 +159,7 @@ RunResult RunOnce(const twist::SessionConfig& config,
       r.rpe_r = m->rpe_r_deg;
       r.ate = m->ate_rmse;
       r.path = m->gt_path_length > 0 ? m->est_path_length / m->gt_path_length : 0.0;
+      r.ate_sim3 = m->ate_sim3_rmse;
     }
     auto refined =
         twist::io::EvaluateCamera(gt, twist::io::RefineCameraWithKeyFrames(est, keyframes));
@@ -200,6 +201,7 @@ void PrintSpreads(const std::vector<RunResult>& runs, std::ostringstream* json) 
       {"rpe_r_deg", &RunResult::rpe_r},
       {"ate", &RunResult::ate},
       {"path_ratio", &RunResult::path},
+      {"ate_sim3", &RunResult::ate_sim3},
       {"refined_rpe_t", &RunResult::refined_rpe_t},
       {"refined_rpe_r_deg", &RunResult::refined_rpe_r},
       {"refined_ate", &RunResult::refined_ate},
@@ -325,11 +327,14 @@ int main(int argc, char** argv) {
                 r.lost,
                 r.keyframes,
                 r.map_points);
-    std::printf("  online  RPE_t %.5f m/frame  RPE_R %.4f deg/frame  ATE %.4f m  path %.5f x\n",
-                r.rpe_t,
-                r.rpe_r,
-                r.ate,
-                r.path);
+    std::printf(
+        "  online  RPE_t %.5f m/frame  RPE_R %.4f deg/frame  ATE %.4f m  path %.5f x  "
+        "ATE after Sim(3) %.4f m\n",
+        r.rpe_t,
+        r.rpe_r,
+        r.ate,
+        r.path,
+        r.ate_sim3);
     std::printf("  refined RPE_t %.5f m/frame  RPE_R %.4f deg/frame  ATE %.4f m\n",
                 r.refined_rpe_t,
                 r.refined_rpe_r,
@@ -343,7 +348,8 @@ int main(int argc, char** argv) {
          << ", \"wall_s\": " << r.wall_s << ", \"lost\": " << r.lost
          << ", \"keyframes\": " << r.keyframes << ", \"map_points\": " << r.map_points
          << ", \"rpe_t\": " << r.rpe_t << ", \"rpe_r_deg\": " << r.rpe_r << ", \"ate\": " << r.ate
-         << ", \"path_ratio\": " << r.path << ", \"refined_rpe_t\": " << r.refined_rpe_t
+         << ", \"path_ratio\": " << r.path << ", \"ate_sim3\": " << r.ate_sim3
+         << ", \"refined_rpe_t\": " << r.refined_rpe_t
          << ", \"refined_rpe_r_deg\": " << r.refined_rpe_r << ", \"refined_ate\": " << r.refined_ate
          << ", \"late_frames\": " << r.late_frames
          << ", \"cpu_ms_per_frame\": " << r.cpu_ms_per_frame

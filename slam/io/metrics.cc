@@ -36,8 +36,13 @@ std::string Num(double v, const char* fmt = "%.4f") {
 
 double RotationAngleDeg(const geometry::SO3d& r) { return r.Log().norm() * kRadToDeg; }
 
-geometry::SE3d AlignRigid(const std::vector<Eigen::Vector3d>& est,
-                          const std::vector<Eigen::Vector3d>& gt) {
+namespace {
+
+// Umeyama (1991): gt ≈ scale · R · est + t in least squares; the scale is
+// fitted when `fit_scale`, else 1.
+Similarity Umeyama(const std::vector<Eigen::Vector3d>& est,
+                   const std::vector<Eigen::Vector3d>& gt,
+                   bool fit_scale) {
   CHECK_EQ(est.size(), gt.size());
   CHECK(!est.empty());
   const double n = static_cast<double>(est.size());
@@ -50,13 +55,36 @@ geometry::SE3d AlignRigid(const std::vector<Eigen::Vector3d>& est,
   mu_e /= n;
   mu_g /= n;
   Eigen::Matrix3d sigma = Eigen::Matrix3d::Zero();
-  for (size_t k = 0; k < est.size(); ++k) sigma += (gt[k] - mu_g) * (est[k] - mu_e).transpose();
+  double var_e = 0.0;
+  for (size_t k = 0; k < est.size(); ++k) {
+    sigma += (gt[k] - mu_g) * (est[k] - mu_e).transpose();
+    var_e += (est[k] - mu_e).squaredNorm();
+  }
   sigma /= n;
+  var_e /= n;
   Eigen::JacobiSVD<Eigen::Matrix3d> svd(sigma, Eigen::ComputeFullU | Eigen::ComputeFullV);
   Eigen::Matrix3d s = Eigen::Matrix3d::Identity();
   if (svd.matrixU().determinant() * svd.matrixV().determinant() < 0) s(2, 2) = -1;
-  const Eigen::Matrix3d r = svd.matrixU() * s * svd.matrixV().transpose();
-  return geometry::SE3d(r, mu_g - r * mu_e);
+  Similarity out;
+  out.rotation = svd.matrixU() * s * svd.matrixV().transpose();
+  if (fit_scale && var_e > 0.0) {
+    out.scale = (svd.singularValues().asDiagonal() * s).trace() / var_e;
+  }
+  out.translation = mu_g - out.scale * out.rotation * mu_e;
+  return out;
+}
+
+}  // namespace
+
+geometry::SE3d AlignRigid(const std::vector<Eigen::Vector3d>& est,
+                          const std::vector<Eigen::Vector3d>& gt) {
+  const Similarity a = Umeyama(est, gt, /*fit_scale=*/false);
+  return geometry::SE3d(a.rotation, a.translation);
+}
+
+Similarity AlignSimilarity(const std::vector<Eigen::Vector3d>& est,
+                           const std::vector<Eigen::Vector3d>& gt) {
+  return Umeyama(est, gt, /*fit_scale=*/true);
 }
 
 VisibleMisses& VisibleMisses::operator+=(const VisibleMisses& o) {
@@ -113,6 +141,13 @@ absl::StatusOr<CameraMetrics> EvaluateCamera(const std::vector<geometry::SE3d>& 
   }
   m.ate_rmse = std::sqrt(sum_sq / static_cast<double>(gt.size()));
   m.ate_mean /= static_cast<double>(gt.size());
+  const Similarity sim = AlignSimilarity(pe, pg);
+  m.sim3_scale = sim.scale;
+  double sum_sq_sim = 0;
+  for (size_t i = 0; i < gt.size(); ++i) {
+    sum_sq_sim += (pg[i] - (sim.scale * sim.rotation * pe[i] + sim.translation)).squaredNorm();
+  }
+  m.ate_sim3_rmse = std::sqrt(sum_sq_sim / static_cast<double>(gt.size()));
   return m;
 }
 
@@ -439,6 +474,13 @@ std::string FormatCameraTable(const CameraMetrics& m) {
                   m.est_path_length);
     out += buf;
   }
+  std::snprintf(buf,
+                sizeof(buf),
+                "  ATE    %10.5f m RMSE after Sim(3) alignment (scale %.5f: the error besides "
+                "the scale)\n",
+                m.ate_sim3_rmse,
+                m.sim3_scale);
+  out += buf;
   return out;
 }
 
@@ -525,6 +567,8 @@ void WriteCameraJson(const CameraMetrics& m, JsonWriter* w) {
   w->Key("ate_rmse_m").Number(m.ate_rmse);
   w->Key("ate_mean_m").Number(m.ate_mean);
   w->Key("ate_max_m").Number(m.ate_max);
+  w->Key("ate_sim3_rmse_m").Number(m.ate_sim3_rmse);
+  w->Key("sim3_scale").Number(m.sim3_scale);
   w->EndObject();
 }
 

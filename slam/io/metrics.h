@@ -45,6 +45,19 @@ double RotationAngleDeg(const geometry::SO3d& r);
 geometry::SE3d AlignRigid(const std::vector<Eigen::Vector3d>& est,
                           const std::vector<Eigen::Vector3d>& gt);
 
+// gt ≈ scale · rotation · est + translation.
+struct Similarity {
+  double scale = 1.0;
+  Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d translation = Eigen::Vector3d::Zero();
+};
+
+// The same with the scale fitted too (Umeyama 1991). It is a diagnostic for
+// a stereo system, whose scale is observable: ATE after it is the error left
+// once a global scale error is taken out (docs/math.md §25).
+Similarity AlignSimilarity(const std::vector<Eigen::Vector3d>& est,
+                           const std::vector<Eigen::Vector3d>& gt);
+
 struct CameraMetrics {
   int64_t num_frames = 0;
   int64_t num_pairs = 0;
@@ -55,7 +68,11 @@ struct CameraMetrics {
   double ate_rmse = 0;  // m, after rigid alignment
   double ate_mean = 0;
   double ate_max = 0;
-  double gt_path_length = 0;           // m
+  // m, after a similarity alignment (AlignSimilarity), and the scale it
+  // applied to the estimate (1 / the estimate's scale error)
+  double ate_sim3_rmse = 0;
+  double sim3_scale = 1;
+  double gt_path_length = 0;  // m
   // m, the same sum over the estimate's consecutive poses: est / gt is the
   // scale error, which the ATE's rigid alignment leaves in (docs/math.md §21)
   double est_path_length = 0;

@@ -68,6 +68,43 @@ TEST(CameraMetrics, PathLengthReadsAScaleError) {
       << FormatCameraTable(*m);
 }
 
+// The same scale error behind a rigid offset, plus a known per-frame
+// wobble: the similarity alignment takes the offset and the scale out
+// exactly (scale 1 / 1.004), so its ATE is the wobble's RMS alone, while
+// the rigid ATE carries the scale too.
+TEST(CameraMetrics, SimilarityAlignmentLeavesTheErrorBesidesTheScale) {
+  const auto gt = CurvyTrajectory(50);
+  const SE3d offset = SE3d::Exp((Vector6d() << 3, -2, 5, 0.3, -1.2, 0.4).finished());
+  std::vector<SE3d> est;
+  for (const SE3d& p : gt) {
+    SE3d q = p;
+    q.translation() *= 1.004;
+    est.push_back(offset * q);
+  }
+  auto m = EvaluateCamera(gt, est);
+  ASSERT_TRUE(m.ok());
+  EXPECT_NEAR(m->sim3_scale, 1.0 / 1.004, 1e-12);
+  EXPECT_NEAR(m->ate_sim3_rmse, 0.0, 1e-9);
+  EXPECT_GT(m->ate_rmse, 0.05);
+
+  // Alternate ±2 cm along each position's own x: zero mean, RMS 0.02 m.
+  for (size_t i = 0; i < est.size(); ++i) {
+    est[i].translation() += offset.so3() * Eigen::Vector3d(i % 2 ? 0.02 : -0.02, 0, 0);
+  }
+  m = EvaluateCamera(gt, est);
+  ASSERT_TRUE(m.ok());
+  EXPECT_NEAR(m->ate_sim3_rmse, 0.02, 1e-3);
+  EXPECT_NEAR(m->sim3_scale, 1.0 / 1.004, 1e-4);
+  EXPECT_NE(FormatCameraTable(*m).find("after Sim(3) alignment (scale 0.99"), std::string::npos)
+      << FormatCameraTable(*m);
+
+  // Without a scale error both alignments agree.
+  auto same = EvaluateCamera(gt, gt);
+  ASSERT_TRUE(same.ok());
+  EXPECT_NEAR(same->sim3_scale, 1.0, 1e-12);
+  EXPECT_NEAR(same->ate_sim3_rmse, 0.0, 1e-9);
+}
+
 TEST(CameraMetrics, ConstantExtraTranslationPerFrame) {
   const auto gt = CurvyTrajectory(60);
   const SE3d delta(SO3d(), Eigen::Vector3d(0.03, -0.04, 0.0));  // 5 cm per frame
