@@ -111,7 +111,7 @@ RunResult RunOnce(const twist::SessionConfig& config,
   twist::Stopwatch total;
   const auto start = std::chrono::steady_clock::now();
   for (const StereoFrame& f : frames) {
-    if (realtime) {
+    if (realtime && &f != &frames.front()) {  // the first frame sets the clock
       const auto due =
           start + std::chrono::nanoseconds(f.timestamp_ns - frames.front().timestamp_ns);
       if (std::chrono::steady_clock::now() > due) {
